@@ -1,0 +1,1 @@
+"""Pure numerical calibration routines over numpy arrays (no devices, files or CLI)."""

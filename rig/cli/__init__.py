@@ -1,0 +1,1 @@
+"""The ``rig`` command line: thin typer commands over library functions."""

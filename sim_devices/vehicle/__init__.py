@@ -1,0 +1,1 @@
+"""Vehicle-dynamics model, tyre model, scenarios and the ground truth they produce."""
