@@ -58,7 +58,7 @@ class GroundTruth:
     wheel_load: FloatArray
     """Vertical wheel loads, shape (n, 4), FL FR RL RR (N)."""
     ltr: FloatArray
-    """True lateral load-transfer ratio (F_right − F_left) / ΣF … sign: positive when the right wheels carry more (left turn)."""
+    """True lateral load-transfer ratio (F_right − F_left) / ΣF; positive when the right wheels carry more."""
     lat0_deg: float = 0.0
     """Latitude of the local ENU origin (deg)."""
     lon0_deg: float = 0.0

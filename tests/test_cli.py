@@ -1,0 +1,52 @@
+"""The `rig` command: help, version, one-line errors and exit codes."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from typer.testing import CliRunner
+
+from rig.cli.main import app, main
+from vsccore import __version__
+
+runner = CliRunner()
+
+
+def test_help_lists_every_command_group() -> None:
+    result = runner.invoke(app, ["--help"])
+    assert result.exit_code == 0
+    assert "config" in result.output
+
+
+def test_version() -> None:
+    result = runner.invoke(app, ["--version"])
+    assert result.exit_code == 0
+    assert __version__ in result.output
+
+
+def test_project_error_is_one_line_and_exit_2(tmp_path, capsys) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[vehicle]\nmass_kgg = 3\n")
+    try:
+        main(["config", "check", str(bad)])
+    except SystemExit as exc:
+        assert exc.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rig: error: ")
+    assert "mass_kgg" in err
+    assert "Traceback" not in err
+
+
+def test_debug_shows_traceback(tmp_path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[vehicle]\nmass_kgg = 3\n")
+    proc = subprocess.run(
+        [sys.executable, "-m", "rig", "--debug", "config", "check", str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode != 0
+    assert "Traceback" in proc.stderr
+    assert "ConfigFileError" in proc.stderr
