@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
 from typer.testing import CliRunner
 
 from rig.cli.main import app, main
@@ -28,10 +29,9 @@ def test_version() -> None:
 def test_project_error_is_one_line_and_exit_2(tmp_path, capsys) -> None:
     bad = tmp_path / "bad.toml"
     bad.write_text("[vehicle]\nmass_kgg = 3\n")
-    try:
+    with pytest.raises(SystemExit) as excinfo:
         main(["config", "check", str(bad)])
-    except SystemExit as exc:
-        assert exc.code == 2
+    assert excinfo.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith("rig: error: ")
     assert "mass_kgg" in err

@@ -50,9 +50,11 @@ def _root(
 
 def _register() -> None:
     """Attach the command groups (each lives in its own module)."""
-    from rig.cli import config_cmd
+    from rig.cli import can_cmd, config_cmd, demo_cmd
 
     app.add_typer(config_cmd.app, name="config")
+    app.add_typer(can_cmd.app, name="can")
+    app.command("demo")(demo_cmd.demo)
 
 
 _register()
