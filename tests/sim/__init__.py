@@ -1,0 +1,1 @@
+"""Tests of the vehicle-dynamics simulator against physics with known answers."""
