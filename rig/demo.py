@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from rig.config import SessionConfig, load_session
-from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, make_scenario, simulate, truth_columns
+from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, demo_drive, simulate, write_truth
 from vsccore.errors import ConfigError
 
 __all__ = ["DemoResult", "StageResult", "demo_config_path", "demo_drive_for", "run_demo"]
@@ -52,20 +52,17 @@ def demo_config_path() -> Path:
 
 
 def demo_drive_for(cfg: SessionConfig, *, fast: bool) -> Drive:
-    """The test programme of the demo: straight runs both ways, circles, a double lane change, a J-turn.
+    """The test programme of the demo (see :func:`sim_devices.vehicle.demo_drive`).
 
-    ``fast`` shortens the programme (fewer steering-ratio circles, shorter straights) for CI.
+    ``fast`` keeps the short CI programme (8 s straights, five steering-ratio circles); without it
+    the straights are longer and the circles cover −480° … +480° in 120° steps.
     """
-    if cfg.simulation is None:
+    sim = cfg.simulation
+    if sim is None:
         raise ConfigError("the demo needs a [simulation] table in its configuration")
-    straight_s = 8.0 if fast else 20.0
-    scenarios = [
-        make_scenario("straight", speed_kmh=40.0, duration_s=straight_s, heading_deg=0.0),
-        make_scenario("straight", speed_kmh=40.0, duration_s=straight_s, heading_deg=180.0),
-        make_scenario("double_lane_change"),
-        make_scenario("j_turn"),
-    ]
-    return Drive(scenarios, gap_s=4.0 if fast else 8.0)
+    if fast:
+        return demo_drive(heading_deg=sim.initial_heading_deg)
+    return demo_drive(heading_deg=sim.initial_heading_deg, straight_s=20.0, swa_step_deg=120.0, gap_s=5.0)
 
 
 def _stage(result: DemoResult, name: str, fn: Callable[[], tuple[str, tuple[Path, ...]]]) -> None:
@@ -97,8 +94,7 @@ def run_demo(out_dir: Path, *, fast: bool = False, config: Path | None = None) -
             seed=sim.seed,
         )
         truth_box.append(truth)
-        csv_path = out_dir / "truth.csv"
-        _write_csv(truth, csv_path)
+        csv_path = write_truth(truth, out_dir / "truth.csv")
         png = out_dir / "truth.png"
         _plot_truth(truth, png)
         beta = np.degrees(np.abs(truth.beta_cg))
@@ -111,12 +107,6 @@ def run_demo(out_dir: Path, *, fast: bool = False, config: Path | None = None) -
 
     _stage(result, "simulate", simulate_stage)
     return result
-
-
-def _write_csv(truth: GroundTruth, path: Path) -> None:
-    cols = truth_columns(truth)
-    table = np.column_stack(list(cols.values()))
-    np.savetxt(path, table, delimiter=",", header=",".join(cols), comments="", fmt="%.9g")
 
 
 def _plot_truth(truth: GroundTruth, path: Path) -> None:

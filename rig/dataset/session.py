@@ -1,0 +1,811 @@
+"""A recorded session read back into numpy arrays on the common time base.
+
+:func:`load_session` scans every part once (in order; a crashed last part is read up to its last
+complete chunk) and keeps each topic's payloads; the accessors decode on first use and cache:
+
+- :meth:`Session.gnss` — BESTPOS/BESTVEL/HEADING/MARKPOS/MARKTIME/TIME of a receiver as column
+  tables with validity; times from the log header's GPS time converted to UTC with the
+  receiver-reported leap seconds;
+- :meth:`Session.can_frames` / :meth:`Session.can_roles` — every frame of a bus, and its rig roles
+  through :class:`drivers.can.vector_decode.VectorRoleDecoder` (DBC and role map from the session's
+  attachments unless given); frame times mapped interface clock → host → GPS by
+  :class:`rig.timebase.Timebase` estimators fitted over the whole session;
+- :meth:`Session.daq`, :meth:`Session.analog`, :meth:`Session.optical` — DAQ sample blocks joined
+  into channels (volts), scaled analog channels and optical-sensor quantities; sample times from
+  the sync pulse (edges on a DAQ channel matched with MARKTIME) when asked, else from the blocks'
+  log times;
+- :meth:`Session.truth` — the simulator's ground truth (simulated sessions) as a
+  :class:`sim_devices.vehicle.truth.GroundTruth` with its times;
+- :attr:`Session.events`, :attr:`Session.config`, :attr:`Session.metadata`, attachments.
+
+Every series carries ``time_ns`` (common time base: UTC ns since the Unix epoch) and, where the
+file has it, ``host_ns`` (host receive time). :func:`align` samples one series at another's times.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import tomllib
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+import rig.topics as T  # noqa: N812 - the module is used as a namespace of topic names
+from rig.recorder.reader import PartScan, ProblemKind, TopicMessages, find_parts, scan_part
+from rig.timebase import ClockEstimator, SyncFit, align_sync_pulses
+from vsccore.errors import AnalysisError, ConfigError, DecodeError, SessionFileError
+from vsccore.gpstime import GPS_EPOCH_UNIX_NS
+
+if TYPE_CHECKING:
+    from cantools.database.can import Database
+
+    from drivers.analog import AnalogChannelSpec
+    from drivers.can.roles import RoleMap
+    from drivers.can.vector_decode import FrameBatch, RoleSeries
+    from drivers.optical import OpticalSample, OpticalSensorSpec
+    from sim_devices.vehicle.truth import GroundTruth
+
+__all__ = [
+    "CanFrames",
+    "DaqData",
+    "GnssData",
+    "Session",
+    "Table",
+    "Truth",
+    "align",
+    "load_session",
+]
+
+log = logging.getLogger(__name__)
+
+IntArray = npt.NDArray[np.int64]
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+_NS = 1_000_000_000
+GOOD_SOLUTION = "SOL_COMPUTED"
+RTK_FIXED_TYPES = frozenset({"NARROW_INT", "L1_INT", "WIDE_INT", "INS_RTKFIXED"})
+
+
+def _default_include(topic: str) -> bool:
+    """Topics kept by default: everything but the bulky per-frame role JSON and the raw GNSS/relay bytes."""
+    return not (topic.endswith("/roles") and topic.startswith("/can/")) and not topic.endswith("/raw")
+
+
+# ---------------------------------------------------------------------------------------------
+# Result types
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Table:
+    """Decoded JSON messages of one topic as columns (numbers float64 with NaN for null, ints int64, text str)."""
+
+    topic: str
+    time_ns: IntArray
+    """Common time base (UTC ns since the Unix epoch)."""
+    host_ns: IntArray
+    """Host receive time (the message's publish_time)."""
+    columns: Mapping[str, npt.NDArray[Any]]
+    valid: BoolArray
+
+    def __len__(self) -> int:
+        return int(self.time_ns.shape[0])
+
+    def __getitem__(self, name: str) -> npt.NDArray[Any]:
+        try:
+            return self.columns[name]
+        except KeyError:
+            raise KeyError(f"{self.topic}: no column {name!r}; columns: {sorted(self.columns)}") from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.columns
+
+
+@dataclass(frozen=True, slots=True)
+class GnssData:
+    """The decoded logs of one receiver (empty tables for logs it did not record)."""
+
+    receiver: str
+    bestpos: Table
+    bestvel: Table
+    heading: Table
+    markpos: Table
+    marktime: Table
+    time: Table
+
+    @property
+    def rtk_fixed(self) -> BoolArray:
+        """Per BESTPOS row: a valid solution with an integer-ambiguity (RTK fixed) position type."""
+        if len(self.bestpos) == 0:
+            return np.zeros(0, dtype=bool)
+        return self.bestpos.valid & np.isin(self.bestpos["pos_type"], list(RTK_FIXED_TYPES))
+
+
+@dataclass(frozen=True, slots=True)
+class CanFrames:
+    """Every frame of one bus, in receive order (error and remote frames included; see ``flags``)."""
+
+    bus: str
+    records: npt.NDArray[Any]
+    """Structured array (:func:`rig.topics.can_dtype`): device_ts_ns, host_ts_ns, can_id, flags, dlc, len, data."""
+    time_ns: IntArray
+    """Common time base of each frame."""
+    time_source: str
+    """How ``time_ns`` was obtained: ``interface`` (interface clock → host → GPS), ``host`` (host → GPS) or
+    ``host_unmapped`` (host time: the session has no GNSS to map it)."""
+
+    def __len__(self) -> int:
+        return int(self.records.shape[0])
+
+    def batch(self, *, data_frames_only: bool = True) -> FrameBatch:
+        """The frames as a :class:`drivers.can.vector_decode.FrameBatch` stamped with ``time_ns``."""
+        from drivers.can.checks import CAN_EFF_FLAG
+        from drivers.can.vector_decode import FrameBatch
+
+        rec = self.records
+        keep = np.ones(rec.shape[0], dtype=bool)
+        if data_frames_only:
+            keep = (rec["flags"] & (T.CanFlag.ERROR | T.CanFlag.REMOTE)) == 0
+        r = rec[keep]
+        ids = r["can_id"].astype(np.uint32) & np.uint32(0x1FFFFFFF)
+        ext = (r["flags"] & T.CanFlag.EXTENDED) != 0
+        ids = np.where(ext, ids | np.uint32(CAN_EFF_FLAG), ids).astype(np.uint32)
+        return FrameBatch(self.time_ns[keep], ids, np.ascontiguousarray(r["data"]), r["len"].astype(np.int16))
+
+
+@dataclass(frozen=True, slots=True)
+class DaqData:
+    """One DAQ device's samples joined over all blocks (sample-index order, duplicates removed)."""
+
+    device: str
+    rate_hz: float
+    channel_names: tuple[str, ...]
+    sample_index: IntArray
+    volts: FloatArray
+    """Shape (n_channels, n_samples)."""
+    time_ns: IntArray
+    time_source: str
+    """``sync_pulse`` (sample index → GPS from sync edges and MARKTIME) or ``log_time`` (a line through the
+    blocks' log times)."""
+    sync: SyncFit | None = None
+    lost: int = 0
+    """Samples missing between the first and the last index (gaps in the sample index)."""
+
+    def __len__(self) -> int:
+        return int(self.sample_index.shape[0])
+
+    def channel(self, name: str) -> FloatArray:
+        try:
+            return self.volts[self.channel_names.index(name)]
+        except ValueError:
+            raise ConfigError(f"DAQ {self.device}: no channel {name!r}; channels: {list(self.channel_names)}") from None
+
+
+@dataclass(frozen=True, slots=True)
+class Truth:
+    """Simulator ground truth with its times on the common time base."""
+
+    time_ns: IntArray
+    truth: GroundTruth
+
+
+# ---------------------------------------------------------------------------------------------
+# Helpers
+# ---------------------------------------------------------------------------------------------
+
+
+def align(
+    t_ns: npt.ArrayLike, src_t_ns: npt.ArrayLike, values: npt.ArrayLike, *, max_gap_ns: int | None = None
+) -> FloatArray:
+    """``values`` (sampled at ``src_t_ns``) linearly interpolated at ``t_ns``; NaN outside the data
+    and, with ``max_gap_ns``, where the neighbouring source samples are further apart than that."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    st = np.asarray(src_t_ns, dtype=np.int64)
+    v = np.asarray(values, dtype=np.float64)
+    if st.size == 0:
+        return np.full(t.shape, np.nan)
+    base = int(st[0])
+    out = np.interp((t - base).astype(np.float64), (st - base).astype(np.float64), v, left=np.nan, right=np.nan)
+    if max_gap_ns is not None and st.size > 1:
+        j = np.clip(np.searchsorted(st, t), 1, st.size - 1)
+        gap = st[j] - st[j - 1]
+        out[gap > max_gap_ns] = np.nan
+    return out
+
+
+def _json_rows(data: Sequence[bytes]) -> list[dict[str, Any]]:
+    if not data:
+        return []
+    rows: list[dict[str, Any]] = json.loads(b"[" + b",".join(data) + b"]")
+    return rows
+
+
+def _columns(rows: Sequence[Mapping[str, Any]], topic: str) -> dict[str, npt.NDArray[Any]]:
+    keys: dict[str, None] = {}
+    for r in rows[:50]:
+        keys.update(dict.fromkeys(r))
+    for r in rows:
+        if len(r) != len(keys) or any(k not in keys for k in r):
+            keys.update(dict.fromkeys(r))
+    spec, _params = _spec(topic)
+    props: Mapping[str, Any] = spec.schema.document.get("properties", {}) if spec is not None else {}
+    cols: dict[str, npt.NDArray[Any]] = {}
+    for k in keys:
+        vals = [r.get(k) for r in rows]
+        declared = props.get(k, {}).get("type")
+        sample = next((v for v in vals if v is not None), None)
+        if declared == "number" and not isinstance(sample, dict | list):
+            cols[k] = np.asarray([np.nan if v is None else float(v) for v in vals], dtype=np.float64)
+        elif isinstance(sample, bool):
+            cols[k] = np.asarray([bool(v) for v in vals], dtype=bool)
+        elif isinstance(sample, int) and all(v is None or (isinstance(v, int) and not isinstance(v, bool))
+                                             for v in vals):
+            if any(v is None for v in vals):
+                cols[k] = np.asarray([np.nan if v is None else float(v) for v in vals], dtype=np.float64)
+                if k.endswith("_ns"):
+                    log.debug("%s: integer column %s has nulls; stored as float", topic, k)
+            else:
+                cols[k] = np.asarray(vals, dtype=np.int64)
+        elif isinstance(sample, int | float):
+            cols[k] = np.asarray([np.nan if v is None else float(v) for v in vals], dtype=np.float64)
+        elif isinstance(sample, str) or sample is None:
+            cols[k] = np.asarray(["" if v is None else str(v) for v in vals], dtype=str)
+        else:
+            arr = np.empty(len(vals), dtype=object)
+            arr[:] = vals
+            cols[k] = arr
+    return cols
+
+
+def _unflatten(flat: Mapping[str, str]) -> dict[str, Any]:
+    """Inverse of :func:`rig.topics.flatten_metadata` (JSON values decoded, other strings kept)."""
+    out: dict[str, Any] = {}
+    for key, text in flat.items():
+        try:
+            value: Any = json.loads(text)
+        except ValueError:
+            value = text
+        node = out
+        parts = key.split(".")
+        for p in parts[:-1]:
+            nxt = node.get(p)
+            if not isinstance(nxt, dict):
+                nxt = {}
+                node[p] = nxt
+            node = nxt
+        node[parts[-1]] = value
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The session
+# ---------------------------------------------------------------------------------------------
+
+
+class Session:
+    """A recorded session (use :func:`load_session`)."""
+
+    def __init__(
+        self, path: Path, scans: Sequence[PartScan], warnings: Sequence[str], gnss_min_latency_s: float | None = None
+    ) -> None:
+        self.path = path
+        self._gnss_min_latency_s = gnss_min_latency_s
+        self.parts: tuple[Path, ...] = tuple(s.path for s in scans)
+        self.warnings: tuple[str, ...] = tuple(warnings)
+        """Problems tolerated while reading (a truncated last part)."""
+        self._topics: dict[str, list[TopicMessages]] = {}
+        self._counts: dict[str, int] = {}
+        for s in scans:
+            for topic, tm in s.topics.items():
+                self._topics.setdefault(topic, []).append(tm)
+            for cid, n in s.channel_counts.items():
+                ch = s.channels[cid]
+                self._counts[ch.topic] = self._counts.get(ch.topic, 0) + n
+        self.metadata: dict[str, dict[str, str]] = {}
+        """Metadata records by name (first part's; part-end records are in :attr:`part_ends`)."""
+        self.part_ends: list[dict[str, str]] = []
+        for i, s in enumerate(scans):
+            for m, _ref in s.metadata:
+                if m.name == T.METADATA_PART_END:
+                    self.part_ends.append(dict(m.metadata))
+                elif i == 0 or m.name not in self.metadata:
+                    self.metadata[m.name] = dict(m.metadata)
+        self.attachments: dict[str, bytes] = {}
+        if scans:
+            for a, _ref in scans[0].attachments:
+                self.attachments[a.name] = bytes(a.data)
+        self._cache: dict[Any, Any] = {}
+
+    # --- basics -----------------------------------------------------------------------------
+
+    @property
+    def topic_counts(self) -> dict[str, int]:
+        """Messages per topic in the file (all topics, loaded or not)."""
+        return dict(self._counts)
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """The session configuration recorded in the file (nested)."""
+        return _unflatten(self.metadata.get(T.METADATA_SESSION, {}))
+
+    @property
+    def vehicle(self) -> dict[str, Any]:
+        return _unflatten(self.metadata.get(T.METADATA_VEHICLE, {}))
+
+    @property
+    def calibration(self) -> dict[str, Any]:
+        """The calibration in force during the session."""
+        return _unflatten(self.metadata.get(T.METADATA_CALIBRATION, {}))
+
+    def _messages(self, topic: str) -> tuple[IntArray, IntArray, list[bytes]]:
+        tms = self._topics.get(topic, [])
+        log_t = np.fromiter((t for tm in tms for t in tm.log_time), dtype=np.int64)
+        pub_t = np.fromiter((t for tm in tms for t in tm.publish_time), dtype=np.int64)
+        data = [d for tm in tms for d in tm.data]
+        return log_t, pub_t, data
+
+    def _table(self, topic: str, valid: Callable[[dict[str, npt.NDArray[Any]]], BoolArray] | None = None) -> Table:
+        key = ("table", topic)
+        if key in self._cache:
+            cached: Table = self._cache[key]
+            return cached
+        log_t, pub_t, data = self._messages(topic)
+        try:
+            rows = _json_rows(data)
+        except ValueError as exc:
+            raise SessionFileError(f"{self.path}: topic {topic}: undecodable JSON message ({exc})") from exc
+        order = np.argsort(log_t, kind="stable")
+        rows = [rows[i] for i in order.tolist()]
+        cols = _columns(rows, topic)
+        v = valid(cols) if valid is not None and rows else np.ones(len(rows), dtype=bool)
+        tbl = Table(topic, log_t[order], pub_t[order], cols, np.asarray(v, dtype=bool))
+        self._cache[key] = tbl
+        return tbl
+
+    @cached_property
+    def events(self) -> list[tuple[int, T.Event]]:
+        """``/rig/events`` as (log time, event), in time order."""
+        log_t, _pub, data = self._messages(T.TOPIC_EVENTS)
+        evs = [T.Event.from_json(r) for r in _json_rows(data)]
+        order = np.argsort(log_t, kind="stable").tolist()
+        return [(int(log_t[i]), evs[i]) for i in order]
+
+    def timebase_records(self) -> Table:
+        """``/rig/timebase`` quality records."""
+        return self._table(T.TOPIC_TIMEBASE)
+
+    # --- GNSS -------------------------------------------------------------------------------
+
+    def receivers(self) -> list[str]:
+        """Receivers with decoded GNSS topics in the file."""
+        out: set[str] = set()
+        for topic in self._counts:
+            spec, params = _spec(topic)
+            if spec is not None and "receiver" in params and not topic.endswith("/raw"):
+                out.add(params["receiver"])
+        return sorted(out)
+
+    @cached_property
+    def leap_seconds(self) -> int | None:
+        """GPS − UTC (s) reported by a receiver's TIME log (None if no receiver reported it)."""
+        for r in self.receivers():
+            tbl = self._table(T.gnss_time(r))
+            if len(tbl) and "leap_seconds" in tbl:
+                vals = tbl["leap_seconds"]
+                vals = vals[np.isfinite(vals.astype(np.float64))]
+                if vals.size:
+                    return int(vals[-1])
+        return None
+
+    def gps_to_utc(self, gps_ns: npt.ArrayLike) -> IntArray:
+        """GPS ns → common time base (needs :attr:`leap_seconds`)."""
+        if self.leap_seconds is None:
+            raise AnalysisError(f"{self.path}: no TIME log with leap seconds; GPS time cannot be put on UTC")
+        return np.asarray(gps_ns, dtype=np.int64) + (GPS_EPOCH_UNIX_NS - self.leap_seconds * _NS)
+
+    def _gnss_table(self, topic: str, valid: Callable[[dict[str, npt.NDArray[Any]]], BoolArray] | None) -> Table:
+        tbl = self._table(topic, valid)
+        if len(tbl) and "gps_time_ns" in tbl and self.leap_seconds is not None:
+            g = tbl["gps_time_ns"]
+            if g.dtype.kind == "i":
+                order = np.argsort(g, kind="stable")
+                cols = {k: v[order] for k, v in tbl.columns.items()}
+                return Table(topic, self.gps_to_utc(g[order]), tbl.host_ns[order], cols, tbl.valid[order])
+        return tbl
+
+    def gnss(self, receiver: str) -> GnssData:
+        """The decoded logs of ``receiver``; times from the GPS time of each log (UTC when leap seconds are known).
+
+        Validity: BESTPOS/BESTVEL/HEADING/MARKPOS rows with ``sol_status == SOL_COMPUTED``.
+        """
+        if receiver not in self.receivers():
+            raise AnalysisError(f"{self.path}: no GNSS data for receiver {receiver!r}; receivers: {self.receivers()}")
+
+        def sol_ok(cols: dict[str, npt.NDArray[Any]]) -> BoolArray:
+            return np.asarray(cols["sol_status"] == GOOD_SOLUTION) if "sol_status" in cols else np.ones(0, bool)
+
+        def all_ok(cols: dict[str, npt.NDArray[Any]]) -> BoolArray:
+            return np.ones(len(next(iter(cols.values()))), dtype=bool)
+
+        return GnssData(
+            receiver=receiver,
+            bestpos=self._gnss_table(T.gnss_bestpos(receiver), sol_ok),
+            bestvel=self._gnss_table(T.gnss_bestvel(receiver), sol_ok),
+            heading=self._gnss_table(T.gnss_heading(receiver), sol_ok),
+            markpos=self._gnss_table(T.gnss_markpos(receiver), sol_ok),
+            marktime=self._gnss_table(T.gnss_marktime(receiver), all_ok),
+            time=self._gnss_table(T.gnss_time(receiver), all_ok),
+        )
+
+    @property
+    def gnss_min_latency_ns(self) -> int:
+        """The constant part of the GNSS log latency (receiver output latency), which the lower envelope cannot see.
+
+        From :func:`load_session`'s ``gnss_min_latency_s``, else the simulated receivers'
+        ``simulation.gnss.output_latency_s`` recorded in the session configuration, else 0.
+        """
+        if self._gnss_min_latency_s is not None:
+            return round(self._gnss_min_latency_s * 1e9)
+        sim = self.config.get("simulation")
+        if isinstance(sim, dict):
+            gnss = sim.get("gnss")
+            if isinstance(gnss, dict) and isinstance(gnss.get("output_latency_s"), int | float):
+                return round(float(gnss["output_latency_s"]) * 1e9)
+        return 0
+
+    @cached_property
+    def host_clock(self) -> ClockEstimator | None:
+        """The GPS → host clock fitted over the whole session from the GNSS logs (None without GNSS)."""
+        for r in self.receivers():
+            for topic in (T.gnss_bestpos(r), T.gnss_bestvel(r), T.gnss_time(r)):
+                tbl = self._table(topic)
+                if len(tbl) and "gps_time_ns" in tbl and tbl["gps_time_ns"].dtype.kind == "i":
+                    est = ClockEstimator(f"gnss:{r}", min_latency_ns=self.gnss_min_latency_ns)
+                    order = np.argsort(tbl["gps_time_ns"], kind="stable")
+                    est.add_many(tbl["gps_time_ns"][order], tbl.host_ns[order])
+                    return est
+        return None
+
+    def host_to_utc(self, host_ns: npt.ArrayLike) -> tuple[IntArray, bool]:
+        """Host times → common time base through the session's GNSS clock; (times, mapped?)."""
+        h = np.asarray(host_ns, dtype=np.int64)
+        est = self.host_clock
+        if est is None or self.leap_seconds is None:
+            return h, False
+        gps = est.mapping().inverse_ns(h)
+        return self.gps_to_utc(gps), True
+
+    # --- CAN --------------------------------------------------------------------------------
+
+    def can_buses(self) -> list[str]:
+        return sorted(_spec(t)[1]["bus"] for t in self._counts if t.startswith("/can/") and t.endswith("/frames"))
+
+    def can_frames(self, bus: str) -> CanFrames:
+        """Every frame recorded on ``bus``, with per-frame times on the common base."""
+        key = ("can", bus)
+        if key in self._cache:
+            cached: CanFrames = self._cache[key]
+            return cached
+        topic = T.can_frames(bus)
+        if topic not in self._counts:
+            raise AnalysisError(f"{self.path}: no CAN frames for bus {bus!r}; buses: {self.can_buses()}")
+        _log, _pub, data = self._messages(topic)
+        try:
+            rec = T.unpack_can_blocks(data)
+        except DecodeError as exc:
+            raise SessionFileError(f"{self.path}: {topic}: {exc}") from exc
+        dev = rec["device_ts_ns"].astype(np.int64)
+        host = rec["host_ts_ns"].astype(np.int64)
+        has_dev = bool(rec.shape[0]) and bool(np.all(dev != T.NO_TIME_NS))
+        source = "host"
+        host_event = host
+        if has_dev:
+            # interface clock → host: lower envelope over the whole session, then host → GPS
+            est = ClockEstimator(f"can:{bus}")
+            order = np.argsort(dev, kind="stable")
+            est.add_many(dev[order], host[order])
+            host_event = est.mapping()(dev)
+            source = "interface"
+        t, mapped = self.host_to_utc(host_event)
+        if not mapped:
+            source = "host_unmapped"
+        out = CanFrames(bus, rec, t, source)
+        self._cache[key] = out
+        return out
+
+    def dbc(self, name: str | None = None) -> Database:
+        """The DBC attached to the session (``name``, or the only ``.dbc`` attachment)."""
+        from drivers.can.dbc import parse_dbc_text
+
+        cands = [n for n in self.attachments if n.lower().endswith(".dbc")] if name is None else [name]
+        if len(cands) != 1 or cands[0] not in self.attachments:
+            raise AnalysisError(
+                f"{self.path}: cannot choose a DBC attachment (asked {name!r}; attached: {sorted(self.attachments)})"
+            )
+        return parse_dbc_text(self.attachments[cands[0]].decode("utf-8", "replace"), source=f"{self.path}:{cands[0]}")
+
+    def rolemap(self, db: Database, bus: str, name: str | None = None) -> RoleMap:
+        """The CAN role map attached to the session (``name``, ``<bus>.roles.toml`` or the only ``*roles*.toml``)."""
+        from drivers.can.roles import RoleMap
+
+        if name is None:
+            if f"{bus}.roles.toml" in self.attachments:
+                name = f"{bus}.roles.toml"
+            else:
+                cands = [n for n in self.attachments if "roles" in n and n.endswith(".toml")]
+                if len(cands) != 1:
+                    raise AnalysisError(
+                        f"{self.path}: no role map for bus {bus!r} among the attachments {sorted(self.attachments)}"
+                    )
+                name = cands[0]
+        try:
+            doc = tomllib.loads(self.attachments[name].decode())
+        except (KeyError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise AnalysisError(f"{self.path}: attachment {name!r} is not a readable role map: {exc}") from exc
+        table = doc if ("roles" in doc or "checks" in doc) else doc.get("can", {})
+        return RoleMap.from_mapping(table, db, source=f"{self.path}:{name}")
+
+    def can_roles(
+        self, bus: str, *, db: Database | None = None, rolemap: RoleMap | None = None
+    ) -> dict[str, RoleSeries]:
+        """The rig roles of ``bus`` (SI, ISO 8855) decoded from every frame with the vectorised decoder.
+
+        ``db``/``rolemap`` default to the session's attachments. Each :class:`RoleSeries` has
+        ``timestamps_ns`` on the common time base, ``values``, ``flags`` and ``ok``.
+        """
+        from drivers.can.vector_decode import VectorRoleDecoder
+
+        key = ("roles", bus, id(db), id(rolemap))
+        if key in self._cache:
+            cached: dict[str, RoleSeries] = self._cache[key]
+            return cached
+        database = db if db is not None else self.dbc()
+        rm = rolemap if rolemap is not None else self.rolemap(database, bus)
+        batch = self.can_frames(bus).batch()
+        roles = dict(VectorRoleDecoder(database, rm).decode(batch).roles)
+        self._cache[key] = roles
+        return roles
+
+    # --- DAQ --------------------------------------------------------------------------------
+
+    def daq_devices(self) -> list[str]:
+        return sorted(_spec(t)[1]["device"] for t in self._counts if t.startswith("/daq/"))
+
+    def daq(
+        self,
+        device: str,
+        *,
+        sync_channel: str | None = None,
+        receiver: str | None = None,
+        sync_low_v: float = 1.0,
+        sync_high_v: float = 4.0,
+    ) -> DaqData:
+        """The samples of one DAQ device (volts) with their times.
+
+        With ``sync_channel`` (the DAQ channel wired to the sync switch) and a ``receiver`` whose
+        MARKTIME (or MARKPOS) logs saw the same edges, sample index → GPS time comes from
+        :func:`rig.timebase.align_sync_pulses`; otherwise from a line through the blocks' log times.
+        """
+        key = ("daq", device, sync_channel, receiver, sync_low_v, sync_high_v)
+        if key in self._cache:
+            cached: DaqData = self._cache[key]
+            return cached
+        topic = T.daq_samples(device)
+        if topic not in self._counts:
+            raise AnalysisError(f"{self.path}: no DAQ samples for device {device!r}; devices: {self.daq_devices()}")
+        log_t, _pub, data = self._messages(topic)
+        try:
+            blocks = [T.unpack_daq_block(d) for d in data]
+        except DecodeError as exc:
+            raise SessionFileError(f"{self.path}: {topic}: {exc}") from exc
+        if not blocks:
+            raise AnalysisError(f"{self.path}: {topic} has no blocks")
+        names = blocks[0].channel_names
+        rate = blocks[0].rate_hz
+        for b in blocks:
+            if b.channel_names != names or b.rate_hz != rate:
+                raise SessionFileError(f"{self.path}: {topic}: channels or rate change between blocks")
+        firsts = np.asarray([b.first_sample_index for b in blocks], dtype=np.int64)
+        order = np.argsort(firsts, kind="stable")
+        idx = np.concatenate([np.arange(blocks[i].first_sample_index, blocks[i].first_sample_index
+                                        + blocks[i].samples.shape[1], dtype=np.int64) for i in order])
+        volts = np.concatenate([blocks[i].volts() for i in order], axis=1)
+        uniq, first_pos = np.unique(idx, return_index=True)
+        if uniq.size != idx.size:
+            idx, volts = uniq, volts[:, first_pos]
+        lost = int(idx[-1] - idx[0] + 1 - idx.size) if idx.size else 0
+        sync: SyncFit | None = None
+        if sync_channel is not None and receiver is not None:
+            sync = self._daq_sync(device, names, idx, volts, rate, sync_channel, receiver, sync_low_v, sync_high_v,
+                                  firsts, log_t)
+            time_ns = self.gps_to_utc(sync.gps_ns(idx))
+            source = "sync_pulse"
+        else:
+            time_ns = _line_fit(firsts, log_t, rate)(idx)
+            source = "log_time"
+        out = DaqData(device, rate, names, idx, volts, time_ns, source, sync, lost)
+        self._cache[key] = out
+        return out
+
+    def _daq_sync(
+        self,
+        device: str,
+        names: tuple[str, ...],
+        idx: IntArray,
+        volts: FloatArray,
+        rate: float,
+        sync_channel: str,
+        receiver: str,
+        low: float,
+        high: float,
+        firsts: IntArray,
+        log_t: IntArray,
+    ) -> SyncFit:
+        from drivers.daq.sync import find_edges
+
+        if sync_channel not in names:
+            raise ConfigError(f"DAQ {device}: sync channel {sync_channel!r} not recorded; channels: {list(names)}")
+        x = volts[names.index(sync_channel)]
+        # Edges per contiguous run of sample indices (no edge is invented across lost samples).
+        breaks = np.flatnonzero(np.diff(idx) != 1) + 1
+        edges: list[FloatArray] = []
+        for seg_start, seg_end in zip(np.r_[0, breaks], np.r_[breaks, idx.size], strict=True):
+            edges.append(find_edges(x[seg_start:seg_end], low=low, high=high,
+                                    first_sample_index=int(idx[seg_start])))
+        edge_idx = np.concatenate(edges) if edges else np.zeros(0)
+        g = self.gnss(receiver)
+        marks_tbl = g.marktime if len(g.marktime) else g.markpos
+        if len(marks_tbl) == 0:
+            raise AnalysisError(f"{self.path}: receiver {receiver!r} has no MARKTIME/MARKPOS to align DAQ {device}")
+        marks = marks_tbl["gps_time_ns"].astype(np.int64)
+        # prior: the blocks' log times (host receive time mapped to GPS by the recorder)
+        approx = None
+        if self.leap_seconds is not None:
+            utc = _line_fit(firsts, log_t, rate)(np.round(edge_idx).astype(np.int64))
+            approx = utc - (GPS_EPOCH_UNIX_NS - self.leap_seconds * _NS)
+        return align_sync_pulses(device, edge_idx, marks, rate, approx_gps_ns=approx)
+
+    def analog(self, device: str, specs: Sequence[AnalogChannelSpec], **daq_kw: Any) -> dict[str, FloatArray]:
+        """Scaled analog channels (SI) of ``device``; times are ``self.daq(device, **daq_kw).time_ns``."""
+        d = self.daq(device, **daq_kw)
+        return {s.name: s.decode(d.channel(s.channel)) for s in specs}
+
+    def optical(
+        self, sensor: str, spec: OpticalSensorSpec | None = None, *, device: str | None = None, **daq_kw: Any
+    ) -> tuple[IntArray, OpticalSample]:
+        """Times (common base) and quantities of an optical sensor.
+
+        With ``spec`` the sensor is computed from its DAQ channels (``device``: the DAQ, default the
+        only one) with :func:`drivers.optical.convert_volts`; without, from the recorded
+        ``/optical/<sensor>`` topic.
+        """
+        from drivers.optical import OpticalSample, convert_volts
+
+        if spec is not None:
+            devs = self.daq_devices()
+            dev = device if device is not None else (devs[0] if len(devs) == 1 else None)
+            if dev is None:
+                raise AnalysisError(f"{self.path}: optical {sensor!r}: name the DAQ device (devices: {devs})")
+            d = self.daq(dev, **daq_kw)
+            volts = {c: d.channel(c) for c in spec.daq_channels}
+            sample = convert_volts(spec, volts, first_sample_index=int(d.sample_index[0]) if len(d) else None)
+            return d.time_ns, sample
+        topic = T.optical(sensor)
+        if topic not in self._counts:
+            raise AnalysisError(f"{self.path}: no {topic} topic; give the sensor spec to compute it from the DAQ")
+        tbl = self._table(topic)
+
+        def col(name: str) -> FloatArray:
+            return np.asarray(tbl[name], dtype=np.float64) if name in tbl else np.full(len(tbl), np.nan)
+
+        valid = np.asarray(tbl["valid"], dtype=bool) if "valid" in tbl else np.ones(len(tbl), bool)
+        sample = OpticalSample(
+            sensor=sensor, vx=col("vx_mps"), vy=col("vy_mps"), slip_angle=col("slip_angle_rad"),
+            speed=col("speed_mps"), valid=valid, zero_offset_applied_rad=float("nan"), time_ns=tbl.time_ns,
+        )
+        return tbl.time_ns, sample
+
+    # --- simulation truth -------------------------------------------------------------------
+
+    def truth(self) -> Truth:
+        """The simulator's ground truth (``/sim/truth``), in time order without duplicates."""
+        from sim_devices.vehicle.truth import GroundTruth
+
+        if "truth" in self._cache:
+            cached: Truth = self._cache["truth"]
+            return cached
+        _log, _pub, data = self._messages(T.TOPIC_SIM_TRUTH)
+        if not data:
+            raise AnalysisError(f"{self.path}: no {T.TOPIC_SIM_TRUTH} (not a simulated session)")
+        try:
+            unpacked = [T.unpack_truth_block(d) for d in data]
+        except DecodeError as exc:
+            raise SessionFileError(f"{self.path}: {T.TOPIC_SIM_TRUTH}: {exc}") from exc
+        rec = np.concatenate([r for r, _o in unpacked])
+        rec = rec[np.argsort(rec["time_ns"], kind="stable")]
+        _u, first = np.unique(rec["time_ns"], return_index=True)
+        rec = rec[first]
+        lat0, lon0, h0 = unpacked[0][1]
+        fields: dict[str, Any] = {name: np.ascontiguousarray(rec[name]) for name in T.TRUTH_DTYPE.names or ()
+                                  if name not in ("time_ns", "t_s")}
+        gt = GroundTruth(t=np.ascontiguousarray(rec["t_s"]), lat0_deg=lat0, lon0_deg=lon0, h0_m=h0, **fields)
+        out = Truth(np.ascontiguousarray(rec["time_ns"]), gt)
+        self._cache["truth"] = out
+        return out
+
+
+def _spec(topic: str) -> tuple[T.TopicSpec | None, dict[str, str]]:
+    try:
+        return T.spec_for_topic(topic)
+    except ValueError:
+        return None, {}
+
+
+def _line_fit(first_index: IntArray, log_t: IntArray, rate_hz: float) -> Callable[[IntArray], IntArray]:
+    """Sample index → time from the blocks' (first index, log time): LS line with the nominal rate as fallback."""
+    if first_index.size >= 2 and np.ptp(first_index) > 0:
+        i0 = int(first_index.min())
+        t0 = int(log_t[np.argmin(first_index)])
+        x = (first_index - i0).astype(np.float64)
+        y = (log_t - t0).astype(np.float64)
+        b, a = np.polyfit(x, y, 1)
+    else:
+        i0 = int(first_index[0]) if first_index.size else 0
+        t0 = int(log_t[0]) if log_t.size else 0
+        a, b = 0.0, 1e9 / rate_hz
+
+    def f(idx: IntArray) -> IntArray:
+        return t0 + np.round(a + b * (np.asarray(idx, dtype=np.int64) - i0).astype(np.float64)).astype(np.int64)
+
+    return f
+
+
+def load_session(
+    path: Path | str,
+    *,
+    include: Callable[[str], bool] | None = None,
+    topics: Iterable[str] | None = None,
+    allow_truncated: bool = True,
+    gnss_min_latency_s: float | None = None,
+) -> Session:
+    """Read every part of a session (base path, any part file, or a directory holding one session).
+
+    Messages are kept for ``topics`` (exact names), else for ``include(topic)``, else for every topic
+    except the per-frame CAN role JSON and raw byte streams. A truncated *last* part (a killed
+    recorder) is read up to its last complete chunk and noted in :attr:`Session.warnings` (unless
+    ``allow_truncated`` is False). ``gnss_min_latency_s``: see :attr:`Session.gnss_min_latency_ns`.
+    Raises :class:`~vsccore.errors.SessionFileError` naming the file
+    and part for a missing part, a damaged part, or an unfinished part that is not the last.
+    """
+    parts = find_parts(path)
+    want: Callable[[str], bool]
+    if topics is not None:
+        wanted = set(topics)
+        want = wanted.__contains__
+    else:
+        want = include or _default_include
+    scans: list[PartScan] = []
+    warnings: list[str] = []
+    for i, p in enumerate(parts):
+        where = f"{p} (part {i + 1} of {len(parts)})"
+        try:
+            scan = scan_part(p, want=want)
+        except SessionFileError as exc:
+            raise SessionFileError(f"{where}: {exc}") from exc
+        if scan.problem is not None:
+            last = i == len(parts) - 1
+            if scan.problem_kind is ProblemKind.TRUNCATED and last and allow_truncated:
+                warnings.append(f"{where}: {scan.problem}; read up to its last complete record")
+                log.warning("%s", warnings[-1])
+            else:
+                raise SessionFileError(f"{where}: {scan.problem}")
+        scans.append(scan)
+    return Session(Path(path), scans, warnings, gnss_min_latency_s)
+

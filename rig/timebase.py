@@ -1,0 +1,829 @@
+"""The common time base: every device clock mapped to GPS time, and GPS time to UTC.
+
+Three estimators, one per kind of clock evidence:
+
+- :class:`ClockEstimator` — a device clock against a reference clock from (device time, reference
+  receive time) pairs. Transport latency (serial, USB, scheduling) is only ever positive, so the
+  reference time of an event is the *lower envelope* of the pairs: the line under all points that
+  lies as close to them as possible (the linear programme of Moon, Skelly & Towsley, "Estimation and
+  removal of clock skew from network delay measurements", 1999: its solution is the lower convex
+  hull edge spanning the mean device time). Streaming: each pair costs O(1) (per-bin minima are
+  kept); fits are local (``window_s``) and joined into a piecewise-linear :class:`ClockMap`, so slow
+  oscillator wander is followed. Isolated pairs *below* the envelope (a glitch, a wrong stamp) are
+  rejected against a robust line through the bin minima before the hull is taken.
+  Used for GNSS receivers (device time = GPS time of the log header, reference = host receive
+  time: this estimates the GPS↔host mapping) and for CAN interfaces with their own timestamps.
+- :func:`align_sync_pulses` — the DAQ sample clock against GPS time from sync-pulse edges: the
+  fractional sample index of each edge (``drivers.daq.sync``) is matched one-to-one with the
+  MARKTIME/MARKPOS GPS times of the same edges (missing and extra pulses on either side are
+  tolerated), and sample index → GPS time is a least-squares fit of the matched pairs (per window
+  for long sessions), which averages the per-edge location error down.
+- :class:`Timebase` — the session's set of clocks: host → GPS through the reference receiver's
+  mapping, CAN interface → host → GPS, GPS → UTC with the receiver-reported leap seconds, and the
+  quality records (jitter, drift, residuals) written to ``/rig/timebase``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from vsccore.errors import AnalysisError
+from vsccore.gpstime import GPS_EPOCH_UNIX_NS
+
+__all__ = [
+    "ClockEstimator",
+    "ClockMap",
+    "ClockQuality",
+    "FitStatus",
+    "SyncFit",
+    "Timebase",
+    "align_sync_pulses",
+    "envelope_line",
+]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+
+class FitStatus(StrEnum):
+    """How far a clock mapping can be trusted."""
+
+    OK = "ok"
+    CONVERGING = "converging"
+    """Too few pairs or too short a span for a drift estimate yet (offset only)."""
+    NO_DATA = "no_data"
+
+
+# ---------------------------------------------------------------------------------------------
+# Piecewise-linear maps
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class ClockMap:
+    """A monotonic piecewise-linear map from a device clock to a reference clock.
+
+    ``ref = y0 + interp(x − x0)``; knots are relative to ``x0``/``y0`` so float64 keeps sub-ns
+    precision over days. Outside the knots the end segments are extended (one knot: slope 1 + drift).
+    Device units are ns for clocks and samples for a DAQ sample index.
+    """
+
+    x0: int
+    y0: int
+    knots_x: FloatArray
+    knots_y: FloatArray
+    end_slope: tuple[float, float] = (1.0, 1.0)
+    """Slopes used before the first and after the last knot."""
+
+    def __post_init__(self) -> None:
+        if self.knots_x.shape != self.knots_y.shape or self.knots_x.size == 0:
+            raise ValueError("ClockMap needs the same non-zero number of x and y knots")
+        if np.any(np.diff(self.knots_x) <= 0):
+            raise ValueError("ClockMap knots must be strictly increasing in x")
+
+    @classmethod
+    def linear(cls, x0: int, y0: int, slope: float) -> ClockMap:
+        """``ref = y0 + slope·(x − x0)``."""
+        return cls(x0, y0, np.zeros(1), np.zeros(1), (slope, slope))
+
+    @property
+    def slope(self) -> float:
+        """Mean slope over the knots (the end slope with one knot)."""
+        if self.knots_x.size < 2:
+            return self.end_slope[1]
+        return float((self.knots_y[-1] - self.knots_y[0]) / (self.knots_x[-1] - self.knots_x[0]))
+
+    def _fwd(self, xr: FloatArray) -> FloatArray:
+        kx, ky = self.knots_x, self.knots_y
+        y = np.interp(xr, kx, ky)
+        lo = xr < kx[0]
+        hi = xr > kx[-1]
+        if lo.any():
+            y[lo] = ky[0] + (xr[lo] - kx[0]) * self.end_slope[0]
+        if hi.any():
+            y[hi] = ky[-1] + (xr[hi] - kx[-1]) * self.end_slope[1]
+        return y
+
+    def __call__(self, x: npt.ArrayLike) -> IntArray:
+        """Reference times (int64 ns) of device times/indices ``x`` (int ns or float sample indices)."""
+        xa = np.asarray(x)
+        xr = (xa - self.x0).astype(np.float64) if xa.dtype.kind in "iu" else np.asarray(xa, np.float64) - self.x0
+        return self.y0 + np.round(self._fwd(np.atleast_1d(xr))).astype(np.int64).reshape(xa.shape)
+
+    def one(self, x: int | float) -> int:
+        """:meth:`__call__` for one value."""
+        return int(self(np.asarray([x]))[0])
+
+    def inverse(self, y: npt.ArrayLike) -> FloatArray:
+        """Device times/indices (float, relative precision of float64 after adding ``x0``) of reference times."""
+        ya = np.asarray(y)
+        yr = np.atleast_1d((ya - self.y0).astype(np.float64))
+        kx, ky = self.knots_x, self.knots_y
+        x = np.interp(yr, ky, kx)
+        lo = yr < ky[0]
+        hi = yr > ky[-1]
+        if lo.any():
+            x[lo] = kx[0] + (yr[lo] - ky[0]) / self.end_slope[0]
+        if hi.any():
+            x[hi] = kx[-1] + (yr[hi] - ky[-1]) / self.end_slope[1]
+        return (x + self.x0).reshape(ya.shape)
+
+    def inverse_ns(self, y: npt.ArrayLike) -> IntArray:
+        """:meth:`inverse` for a clock in ns, as exact int64 (the offset is added in integers)."""
+        ya = np.asarray(y)
+        yr = np.atleast_1d((ya - self.y0).astype(np.float64))
+        kx, ky = self.knots_x, self.knots_y
+        x = np.interp(yr, ky, kx)
+        lo = yr < ky[0]
+        hi = yr > ky[-1]
+        if lo.any():
+            x[lo] = kx[0] + (yr[lo] - ky[0]) / self.end_slope[0]
+        if hi.any():
+            x[hi] = kx[-1] + (yr[hi] - ky[-1]) / self.end_slope[1]
+        return (self.x0 + np.round(x).astype(np.int64)).reshape(ya.shape)
+
+
+# ---------------------------------------------------------------------------------------------
+# Lower envelope
+# ---------------------------------------------------------------------------------------------
+
+
+def _lower_hull(x: FloatArray, y: FloatArray) -> list[int]:
+    """Indices of the lower convex hull of points sorted by x (Andrew's monotone chain)."""
+    hull: list[int] = []
+    for i in range(x.size):
+        xi, yi = x[i], y[i]
+        while len(hull) >= 2:
+            a, b = hull[-2], hull[-1]
+            # keep b only if it lies strictly below the segment a→i
+            if (x[b] - x[a]) * (yi - y[a]) - (y[b] - y[a]) * (xi - x[a]) <= 0:
+                hull.pop()
+            else:
+                break
+        if hull and x[hull[-1]] == xi:
+            if yi < y[hull[-1]]:
+                hull.pop()
+            else:
+                continue
+        hull.append(i)
+    return hull
+
+
+def _robust_line(x: FloatArray, y: FloatArray, iterations: int = 4) -> tuple[float, float, float]:
+    """Slope, intercept and robust σ of an LS line with iterative rejection of far points."""
+    keep = np.ones(x.size, dtype=bool)
+    slope, icpt, sigma = 0.0, float(np.median(y)), 0.0
+    for _ in range(iterations):
+        xs, ys = x[keep], y[keep]
+        if xs.size >= 2 and np.ptp(xs) > 0:
+            slope, icpt = (float(v) for v in np.polyfit(xs, ys, 1))
+        else:
+            slope, icpt = 0.0, float(np.median(ys))
+        r = y - (icpt + slope * x)
+        med = float(np.median(r[keep]))
+        sigma = 1.4826 * float(np.median(np.abs(r[keep] - med)))
+        new = np.abs(r - med) <= 4.0 * sigma + 1.0
+        if new.sum() < max(2, keep.sum() // 2) or np.array_equal(new, keep):
+            break
+        keep = new
+    return slope, icpt, sigma
+
+
+def envelope_line(
+    x: npt.ArrayLike, y: npt.ArrayLike, *, reject_below: float | None = None
+) -> tuple[float, float, npt.NDArray[np.bool_]]:
+    """The lower-envelope line ``y ≈ a + b·x`` under points (x sorted ascending or not).
+
+    Returns ``(a, b, used)``: the supporting line of the lower convex hull at the mean x (the
+    solution of: minimise Σ(yᵢ − a − b·xᵢ) subject to yᵢ ≥ a + b·xᵢ), and the mask of points used.
+    Points further than ``reject_below`` under a robust line through the data (default: 6 robust σ
+    + 0.1 % of the y spread, at least 1) are treated as glitches and left out. With one distinct x
+    the slope is 0.
+    """
+    xa = np.asarray(x, dtype=np.float64)
+    ya = np.asarray(y, dtype=np.float64)
+    if xa.size == 0:
+        raise AnalysisError("lower envelope of no points")
+    order = np.argsort(xa, kind="stable")
+    xs, ys = xa[order], ya[order]
+    slope, icpt, sigma = _robust_line(xs, ys)
+    r = ys - (icpt + slope * xs)
+    med = float(np.median(r))
+    thr = reject_below if reject_below is not None else 6.0 * sigma + 1e-3 * float(np.ptp(ys)) + 1.0
+    ok = r >= med - thr
+    # never reject everything (then nothing is a glitch)
+    if ok.sum() == 0:
+        ok[:] = True
+    xk, yk = xs[ok], ys[ok]
+    hull = _lower_hull(xk, yk)
+    if len(hull) == 1:
+        a, b = float(yk[hull[0]]), 0.0
+    else:
+        xm = float(xk.mean())
+        hx = xk[hull]
+        k = int(np.searchsorted(hx, xm, side="right")) - 1
+        k = min(max(k, 0), len(hull) - 2)
+        i, j = hull[k], hull[k + 1]
+        b = float((yk[j] - yk[i]) / (xk[j] - xk[i]))
+        a = float(yk[i] - b * xk[i])
+    used = np.zeros(xa.size, dtype=bool)
+    used[order[ok]] = True
+    return a, b, used
+
+
+@dataclass(frozen=True, slots=True)
+class ClockQuality:
+    """How well a clock is mapped (one ``/rig/timebase`` record, see :meth:`to_json`)."""
+
+    clock: str
+    method: str
+    reference: str
+    status: FitStatus
+    n: int
+    span_s: float
+    offset_ns: int | None = None
+    drift_ppm: float | None = None
+    jitter_ns: float | None = None
+    latency_p50_ns: float | None = None
+    latency_p95_ns: float | None = None
+    rms_ns: float | None = None
+    max_abs_ns: float | None = None
+    leap_seconds: int | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "clock": self.clock,
+            "method": self.method,
+            "reference": self.reference,
+            "status": self.status.value,
+            "n": self.n,
+            "span_s": self.span_s,
+        }
+        for key in ("offset_ns", "drift_ppm", "jitter_ns", "latency_p50_ns", "latency_p95_ns", "rms_ns",
+                    "max_abs_ns", "leap_seconds"):
+            out[key] = getattr(self, key)
+        return out
+
+
+class ClockEstimator:
+    """Online lower-envelope estimate of a device clock against a reference clock.
+
+    Feed ``add(device_ns, ref_ns)`` for every stamped message (``ref_ns`` is when the reference
+    clock — usually the host — saw it). Pairs are reduced to per-bin minima (``bin_s`` of device
+    time), so memory grows by one point per bin. ``mapping()`` fits a line per ``window_s`` window
+    (half-overlapping) and joins the windows into a piecewise-linear :class:`ClockMap`; ``to_ref``
+    uses the latest window's line (cached, refitted when a bin closes). ``min_latency_ns`` is a
+    known constant part of the latency (e.g. the serial transmission time of a log) that the
+    envelope cannot see; it is subtracted. Thread-safe.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        reference: str = "host",
+        bin_s: float = 0.5,
+        window_s: float = 120.0,
+        min_latency_ns: int = 0,
+        recent: int = 4096,
+        min_span_s: float = 2.0,
+    ) -> None:
+        if bin_s <= 0 or window_s < 4 * bin_s:
+            raise ValueError(f"clock {name}: need bin_s > 0 and window_s >= 4·bin_s, got {bin_s}, {window_s}")
+        self.name = name
+        self.reference = reference
+        self._bin_ns = int(bin_s * 1e9)
+        self._window_ns = int(window_s * 1e9)
+        self._min_latency = int(min_latency_ns)
+        self._min_span_ns = int(min_span_s * 1e9)
+        self._lock = threading.Lock()
+        self._x0: int | None = None
+        self._y_base = 0
+        self._bin_key: int | None = None
+        self._cur: tuple[int, int] | None = None  # (x_rel, y) lowest pair of the open bin
+        self._bx: list[int] = []
+        self._by: list[int] = []
+        self._recent: deque[tuple[int, int]] = deque(maxlen=recent)
+        self._n = 0
+        self._first_x: int | None = None
+        self._last_x: int | None = None
+        self._fit: tuple[int, int, float] | None = None  # (x0 abs, y0 abs, slope) of the latest window
+        self._fit_bins = -1
+
+    @property
+    def n(self) -> int:
+        """Pairs added."""
+        return self._n
+
+    def add(self, device_ns: int, ref_ns: int) -> None:
+        """One (device time, reference receive time) pair."""
+        with self._lock:
+            self._add(int(device_ns), int(ref_ns) - self._min_latency)
+
+    def add_many(self, device_ns: npt.ArrayLike, ref_ns: npt.ArrayLike) -> None:
+        """Many pairs at once (vectorised; best in device-time order)."""
+        d = np.asarray(device_ns, dtype=np.int64).reshape(-1)
+        r = np.asarray(ref_ns, dtype=np.int64).reshape(-1) - self._min_latency
+        if d.shape != r.shape:
+            raise ValueError(f"clock {self.name}: {d.size} device times but {r.size} reference times")
+        if d.size == 0:
+            return
+        with self._lock:
+            if d.size < 16:
+                for a, b in zip(d.tolist(), r.tolist(), strict=True):
+                    self._add(a, b)
+                return
+            if self._x0 is None:
+                self._x0 = int(d[0])
+                self._y_base = int(r[0]) - int(d[0])
+            xr = d - self._x0
+            y = r - d - self._y_base
+            self._n += int(d.size)
+            tail = min(d.size, self._recent.maxlen or 0)
+            self._recent.extend(zip(d[-tail:].tolist(), r[-tail:].tolist(), strict=True))
+            lo, hi = int(d.min()), int(d.max())
+            self._first_x = lo if self._first_x is None else min(self._first_x, lo)
+            self._last_x = hi if self._last_x is None else max(self._last_x, hi)
+            keys = xr // self._bin_ns
+            if self._cur is not None and self._bin_key is not None:
+                xr = np.r_[self._cur[0], xr]
+                y = np.r_[self._cur[1], y]
+                keys = np.r_[self._bin_key, keys]
+            order = np.lexsort((y, keys))
+            ks = keys[order]
+            first = np.r_[True, ks[1:] != ks[:-1]]
+            sel = order[first]  # the lowest pair of each bin, bins ascending
+            self._bx.extend(xr[sel[:-1]].tolist())
+            self._by.extend(y[sel[:-1]].tolist())
+            last = int(sel[-1])
+            self._cur = (int(xr[last]), int(y[last]))
+            self._bin_key = int(keys[last])
+
+    def _add(self, x: int, ref: int) -> None:
+        if self._x0 is None:
+            self._x0 = x
+            self._y_base = ref - x
+        xr = x - self._x0
+        y = ref - x - self._y_base  # offset relative to the first pair: small numbers
+        self._n += 1
+        self._recent.append((x, ref))
+        self._first_x = x if self._first_x is None else min(self._first_x, x)
+        self._last_x = x if self._last_x is None else max(self._last_x, x)
+        key = xr // self._bin_ns
+        if key != self._bin_key:
+            if self._cur is not None:
+                self._bx.append(self._cur[0])
+                self._by.append(self._cur[1])
+            self._bin_key = key
+            self._cur = (xr, y)
+        elif self._cur is None or y < self._cur[1]:
+            self._cur = (xr, y)
+
+    def _points(self) -> tuple[FloatArray, FloatArray]:
+        bx = list(self._bx)
+        by = list(self._by)
+        if self._cur is not None:
+            bx.append(self._cur[0])
+            by.append(self._cur[1])
+        x = np.asarray(bx, dtype=np.float64)
+        y = np.asarray(by, dtype=np.float64)
+        if x.size > 1 and np.any(np.diff(x) < 0):  # pairs came out of order: re-merge into bins
+            order = np.argsort(x, kind="stable")
+            x, y = x[order], y[order]
+        return x, y
+
+    def status(self) -> FitStatus:
+        if self._n == 0:
+            return FitStatus.NO_DATA
+        assert self._first_x is not None and self._last_x is not None
+        if self._last_x - self._first_x < self._min_span_ns or len(self._bx) < 3:
+            return FitStatus.CONVERGING
+        return FitStatus.OK
+
+    def _window_line(self, x: FloatArray, y: FloatArray, lo: float, hi: float) -> tuple[float, float]:
+        m = (x >= lo) & (x <= hi)
+        if m.sum() == 0:
+            m[np.argmin(np.abs(x - 0.5 * (lo + hi)))] = True
+        a, b, _ = envelope_line(x[m], y[m])
+        if m.sum() < 3 or np.ptp(x[m]) < self._min_span_ns:
+            # too little span for a drift: offset only, at the lowest point
+            return float(np.min(y[m])), 0.0
+        return a, b
+
+    def fit(self) -> tuple[int, int, float] | None:
+        """The latest window's line as (device x, reference y at x, slope dy/dx), or None without data."""
+        with self._lock:
+            if self._n == 0:
+                return None
+            nb = len(self._bx)
+            if self._fit is not None and self._fit_bins == nb:
+                return self._fit
+            x, y = self._points()
+            assert self._x0 is not None
+            hi = float(x[-1])
+            a, b = self._window_line(x, y, hi - self._window_ns, hi)
+            xr = int(x[-1])
+            fit = (self._x0 + xr, self._x0 + xr + self._y_base + round(a + b * xr), 1.0 + b)
+            self._fit = fit
+            self._fit_bins = nb
+            return fit
+
+    def to_ref(self, device_ns: int) -> int | None:
+        """Reference time of a device time from the latest fit (None before any pair)."""
+        f = self.fit()
+        if f is None:
+            return None
+        x, y, slope = f
+        return y + round((device_ns - x) * slope)
+
+    def to_device(self, ref_ns: int) -> int | None:
+        """Inverse of :meth:`to_ref`."""
+        f = self.fit()
+        if f is None:
+            return None
+        x, y, slope = f
+        return x + round((ref_ns - y) / slope)
+
+    def mapping(self) -> ClockMap:
+        """Piecewise-linear device → reference map over everything seen (raises without data)."""
+        with self._lock:
+            if self._n == 0:
+                raise AnalysisError(f"clock {self.name}: no (device, {self.reference}) pairs to map")
+            x, y = self._points()
+            assert self._x0 is not None
+            x0, base = self._x0, self._y_base
+            span = float(x[-1] - x[0])
+            w = float(self._window_ns)
+            if span <= w:
+                centres = [0.5 * (x[0] + x[-1])]
+            else:
+                n_knots = int(math.ceil(span / (0.5 * w))) + 1
+                centres = list(np.linspace(x[0], x[-1], n_knots))
+            kx: list[float] = []
+            ky: list[float] = []
+            slopes: list[float] = []
+            for c in centres:
+                a, b = self._window_line(x, y, c - 0.5 * w, c + 0.5 * w)
+                kx.append(c)
+                ky.append(a + b * c + c)  # reference − y0 at device c (y was ref − x − base)
+                slopes.append(1.0 + b)
+        return ClockMap(x0, x0 + base, np.asarray(kx), np.asarray(ky), (slopes[0], slopes[-1]))
+
+    def residuals(self) -> FloatArray:
+        """Reference − mapped time of the recent pairs (ns, ≥ 0 up to glitches): their latency above the envelope."""
+        with self._lock:
+            pairs = list(self._recent)
+        if not pairs:
+            return np.zeros(0)
+        m = self.mapping()
+        d = np.asarray([p[0] for p in pairs], dtype=np.int64)
+        r = np.asarray([p[1] for p in pairs], dtype=np.int64)
+        return (r - m(d)).astype(np.float64)
+
+    def quality(self, leap_seconds: int | None = None) -> ClockQuality:
+        """The record for ``/rig/timebase``."""
+        st = self.status()
+        if st is FitStatus.NO_DATA:
+            return ClockQuality(self.name, "lower_envelope", self.reference, st, 0, 0.0, leap_seconds=leap_seconds)
+        assert self._first_x is not None and self._last_x is not None
+        f = self.fit()
+        assert f is not None
+        res = self.residuals()
+        return ClockQuality(
+            clock=self.name,
+            method="lower_envelope",
+            reference=self.reference,
+            status=st,
+            n=self._n,
+            span_s=(self._last_x - self._first_x) / 1e9,
+            offset_ns=f[1] - f[0],
+            drift_ppm=(f[2] - 1.0) * 1e6,
+            jitter_ns=float(np.std(res)) if res.size else None,
+            latency_p50_ns=float(np.percentile(res, 50)) if res.size else None,
+            latency_p95_ns=float(np.percentile(res, 95)) if res.size else None,
+            leap_seconds=leap_seconds,
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# DAQ sync pulses
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class SyncFit:
+    """Sample index → GPS time of a DAQ, from matched sync-pulse edges."""
+
+    device: str
+    map: ClockMap
+    """Fractional sample index → GPS ns."""
+    rate_hz: float
+    """Nominal sample rate."""
+    matched_edges: npt.NDArray[np.float64]
+    """Fractional sample indices of the matched edges."""
+    matched_marks: IntArray
+    """GPS ns of the marks they were matched with."""
+    residual_ns: FloatArray
+    """Matched mark − mapped edge time (ns)."""
+    unmatched_edges: int
+    unmatched_marks: int
+
+    @property
+    def drift_ppm(self) -> float:
+        """How much faster the DAQ runs than its nominal rate, in ppm (positive: more samples per GPS second)."""
+        return (1e9 / (self.map.slope * self.rate_hz) - 1.0) * 1e6
+
+    @property
+    def rms_ns(self) -> float:
+        return float(np.sqrt(np.mean(self.residual_ns**2))) if self.residual_ns.size else math.nan
+
+    def gps_ns(self, sample_index: npt.ArrayLike) -> IntArray:
+        """GPS time (ns) of sample indices."""
+        return self.map(np.asarray(sample_index, dtype=np.float64))
+
+    def quality(self, leap_seconds: int | None = None) -> ClockQuality:
+        n = int(self.matched_edges.size)
+        span = float(self.matched_marks[-1] - self.matched_marks[0]) / 1e9 if n else 0.0
+        return ClockQuality(
+            clock=self.device,
+            method="sync_pulse",
+            reference="gps",
+            status=FitStatus.OK if n >= 2 else FitStatus.CONVERGING,
+            n=n,
+            span_s=span,
+            offset_ns=self.map.one(0.0),
+            drift_ppm=self.drift_ppm,
+            rms_ns=self.rms_ns,
+            max_abs_ns=float(np.max(np.abs(self.residual_ns))) if n else None,
+            leap_seconds=leap_seconds,
+        )
+
+
+def _match_nearest(pred: IntArray, marks: IntArray, tol_ns: float) -> tuple[IntArray, IntArray]:
+    """One-to-one matching of predicted edge times to marks: nearest first, within ``tol_ns``."""
+    if pred.size == 0 or marks.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    j = np.clip(np.searchsorted(marks, pred), 1, marks.size - 1) if marks.size > 1 else np.zeros(pred.size, np.int64)
+    if marks.size > 1:
+        left = j - 1
+        use_left = np.abs(pred - marks[left]) <= np.abs(pred - marks[j])
+        j = np.where(use_left, left, j)
+    d = np.abs(pred - marks[j]).astype(np.float64)
+    cand = np.flatnonzero(d <= tol_ns)
+    cand = cand[np.argsort(d[cand], kind="stable")]
+    used_marks: set[int] = set()
+    ei: list[int] = []
+    mi: list[int] = []
+    for e in cand.tolist():
+        m = int(j[e])
+        if m not in used_marks:
+            used_marks.add(m)
+            ei.append(e)
+            mi.append(m)
+    order = np.argsort(np.asarray(ei, dtype=np.int64), kind="stable")
+    return np.asarray(ei, dtype=np.int64)[order], np.asarray(mi, dtype=np.int64)[order]
+
+
+def _ls_map(idx: FloatArray, gps: IntArray, window_s: float, rate_hz: float) -> ClockMap:
+    """LS line (or windowed LS lines joined) of GPS ns against fractional sample index."""
+    i0 = float(idx[0])
+    g0 = int(gps[0])
+    x = idx - i0
+    y = (gps - g0).astype(np.float64)
+    span = float(y[-1] - y[0]) / 1e9
+    if idx.size < 2:
+        slope = 1e9 / rate_hz
+        return ClockMap(0, g0, np.asarray([i0]), np.asarray([0.0]), (slope, slope))
+    if span <= window_s or idx.size < 6:
+        b, a = np.polyfit(x, y, 1)
+        return ClockMap(0, g0, np.asarray([i0]), np.asarray([float(a)]), (float(b), float(b)))
+    w = window_s * rate_hz  # window in samples
+    n_knots = int(math.ceil((x[-1] - x[0]) / (0.5 * w))) + 1
+    centres = np.linspace(x[0], x[-1], n_knots)
+    ky: list[float] = []
+    slopes: list[float] = []
+    for c in centres:
+        m = np.abs(x - c) <= 0.5 * w
+        if m.sum() < 3:
+            nearest = np.argsort(np.abs(x - c))[:3]
+            m = np.zeros(x.size, dtype=bool)
+            m[nearest] = True
+        b, a = np.polyfit(x[m], y[m], 1)
+        ky.append(float(a + b * c))
+        slopes.append(float(b))
+    return ClockMap(0, g0, centres + i0, np.asarray(ky), (slopes[0], slopes[-1]))
+
+
+def align_sync_pulses(
+    device: str,
+    edge_index: npt.ArrayLike,
+    mark_gps_ns: npt.ArrayLike,
+    rate_hz: float,
+    *,
+    approx_gps_ns: npt.ArrayLike | None = None,
+    prior_tolerance_s: float = 0.25,
+    max_drift_ppm: float = 300.0,
+    tolerance_ns: float = 1_000_000.0,
+    window_s: float = 300.0,
+) -> SyncFit:
+    """Map a DAQ's sample index to GPS time from sync-pulse edges and their MARKTIME/MARKPOS times.
+
+    ``edge_index``: fractional sample indices of the sync edges found on the DAQ channel;
+    ``mark_gps_ns``: GPS times of the same switch edges from the receiver's event input. Either
+    side may miss pulses or have extra ones. ``approx_gps_ns`` (one per edge, e.g. from the DAQ
+    blocks' host receive times through the GNSS host mapping) makes the first match unambiguous
+    within ``prior_tolerance_s``; without it the offset is found by voting over edge/mark pairs
+    (which needs irregular pulse intervals, as a hand-operated switch gives). Final pairs must agree
+    with the fitted map within ``tolerance_ns``.
+
+    Raises :class:`~vsccore.errors.AnalysisError` naming the device when fewer than two edges match.
+    """
+    edges = np.sort(np.asarray(edge_index, dtype=np.float64))
+    marks = np.sort(np.asarray(mark_gps_ns, dtype=np.int64))
+    if edges.size == 0 or marks.size == 0:
+        raise AnalysisError(f"DAQ {device}: no sync edges ({edges.size}) or no marks ({marks.size}) to align")
+    period = 1e9 / rate_hz
+    if approx_gps_ns is not None:
+        approx = np.asarray(approx_gps_ns, dtype=np.int64)
+        if approx.shape != np.asarray(edge_index).shape:
+            raise ValueError(f"DAQ {device}: approx_gps_ns needs one value per edge")
+        approx = approx[np.argsort(np.asarray(edge_index, dtype=np.float64), kind="stable")]
+        ei, mi = _match_nearest(approx, marks, prior_tolerance_s * 1e9)
+    else:
+        ei, mi = _vote(edges, marks, period, max_drift_ppm)
+    if ei.size < 2:
+        raise AnalysisError(f"DAQ {device}: only {ei.size} sync edge(s) match a GPS mark; cannot align")
+    # Grow and clean the match with the fitted map: rematch all edges, tighter each time.
+    tol = max(tolerance_ns * 50, 20e6)
+    for _ in range(6):
+        fmap = _ls_map(edges[ei], marks[mi], window_s, rate_hz)
+        pred = fmap(edges)
+        ei, mi = _match_nearest(pred, marks, tol)
+        if ei.size < 2:
+            raise AnalysisError(f"DAQ {device}: sync edges and GPS marks do not agree on one clock")
+        if tol <= tolerance_ns:
+            break
+        tol = max(tolerance_ns, tol / 10)
+    fmap = _ls_map(edges[ei], marks[mi], window_s, rate_hz)
+    resid = (marks[mi] - fmap(edges[ei])).astype(np.float64)
+    return SyncFit(
+        device=device,
+        map=fmap,
+        rate_hz=rate_hz,
+        matched_edges=edges[ei],
+        matched_marks=marks[mi],
+        residual_ns=resid,
+        unmatched_edges=int(edges.size - ei.size),
+        unmatched_marks=int(marks.size - mi.size),
+    )
+
+
+def _vote(edges: FloatArray, marks: IntArray, period_ns: float, max_drift_ppm: float) -> tuple[IntArray, IntArray]:
+    """Initial matching without a prior: the offset most edge/mark pairs agree on (early pulses only)."""
+    n_e = min(edges.size, 40)
+    n_m = min(marks.size, 60)
+    e = edges[:n_e]
+    m = marks[:n_m]
+    offs = (m[None, :] - np.round(e[:, None] * period_ns).astype(np.int64)).ravel()
+    offs.sort()
+    span = float(np.ptp(e)) * period_ns if n_e > 1 else 0.0
+    tol = 2e6 + 2 * max_drift_ppm * 1e-6 * span
+    # densest window of width tol over the sorted offsets
+    hi = np.searchsorted(offs, offs + tol, side="right")
+    best = int(np.argmax(hi - np.arange(offs.size)))
+    offset = float(np.median(offs[best : hi[best]]))
+    pred = (offset + edges * period_ns).astype(np.int64)
+    return _match_nearest(pred, marks, tol)
+
+
+# ---------------------------------------------------------------------------------------------
+# The session's clocks
+# ---------------------------------------------------------------------------------------------
+
+
+class Timebase:
+    """Every clock of a session on the common time base (GPS-derived UTC, ns since the Unix epoch).
+
+    - ``gnss_clock(receiver)``: GPS → host estimator of a receiver (add (GPS time of the log header,
+      host receive time) for every log); the first receiver added, or ``reference_receiver``, maps
+      host times to GPS time;
+    - ``clock(name)``: a device clock (e.g. a CAN interface) → host estimator;
+    - ``leap_seconds``: GPS − UTC from the receiver's TIME log (``set_leap_seconds``); until it is
+      known, :meth:`gps_to_utc` raises and :meth:`host_to_utc` returns the host time unchanged;
+    - ``daq``: DAQ sample index → GPS maps from :func:`align_sync_pulses` (``set_daq``).
+    """
+
+    def __init__(self, *, reference_receiver: str | None = None, window_s: float = 120.0) -> None:
+        self._lock = threading.Lock()
+        self._window_s = window_s
+        self._gnss: dict[str, ClockEstimator] = {}
+        self._clocks: dict[str, ClockEstimator] = {}
+        self._daq: dict[str, SyncFit] = {}
+        self._reference = reference_receiver
+        self.leap_seconds: int | None = None
+
+    def gnss_clock(self, receiver: str) -> ClockEstimator:
+        with self._lock:
+            est = self._gnss.get(receiver)
+            if est is None:
+                est = ClockEstimator(f"gnss:{receiver}", reference="host", window_s=self._window_s)
+                self._gnss[receiver] = est
+                if self._reference is None:
+                    self._reference = receiver
+            return est
+
+    def clock(self, name: str) -> ClockEstimator:
+        with self._lock:
+            est = self._clocks.get(name)
+            if est is None:
+                est = ClockEstimator(name, reference="host", window_s=self._window_s)
+                self._clocks[name] = est
+            return est
+
+    def set_leap_seconds(self, leap_seconds: int) -> None:
+        self.leap_seconds = int(leap_seconds)
+
+    def set_daq(self, fit: SyncFit) -> None:
+        self._daq[fit.device] = fit
+
+    @property
+    def reference_receiver(self) -> str | None:
+        return self._reference
+
+    def _ref(self) -> ClockEstimator | None:
+        return None if self._reference is None else self._gnss.get(self._reference)
+
+    def host_to_gps(self, host_ns: int) -> int | None:
+        """GPS time (ns since the GPS epoch) of a host time, from the live fit (None before GNSS data)."""
+        ref = self._ref()
+        return None if ref is None else ref.to_device(host_ns)
+
+    def gps_to_utc(self, gps_ns: int) -> int:
+        """UTC ns since the Unix epoch (needs the leap seconds)."""
+        if self.leap_seconds is None:
+            raise AnalysisError("time base: GPS − UTC leap seconds not known yet (no TIME log)")
+        return gps_ns + GPS_EPOCH_UNIX_NS - self.leap_seconds * 1_000_000_000
+
+    def host_to_utc(self, host_ns: int) -> int:
+        """Common-time-base time of a host time (the host time itself until GPS and leap seconds are known)."""
+        gps = self.host_to_gps(host_ns)
+        if gps is None or self.leap_seconds is None:
+            return host_ns
+        return self.gps_to_utc(gps)
+
+    def device_to_utc(self, clock: str, device_ns: int, host_ns: int | None = None) -> int:
+        """Common time of a device-stamped event; ``host_ns`` (its receive time) also feeds the estimator."""
+        est = self.clock(clock)
+        if host_ns is not None:
+            est.add(device_ns, host_ns)
+        host = est.to_ref(device_ns)
+        return self.host_to_utc(host if host is not None else device_ns)
+
+    def host_to_gps_map(self) -> ClockMap:
+        """Offline host → GPS map over the whole session (inverse of the reference receiver's map)."""
+        ref = self._ref()
+        if ref is None:
+            raise AnalysisError("time base: no GNSS receiver clock to map host time to GPS")
+        return _invert(ref.mapping())
+
+    def quality(self) -> list[ClockQuality]:
+        """One record per clock for ``/rig/timebase``."""
+        out = [e.quality(self.leap_seconds) for e in self._gnss.values()]
+        out += [e.quality(self.leap_seconds) for e in self._clocks.values()]
+        out += [f.quality(self.leap_seconds) for f in self._daq.values()]
+        return out
+
+    def quality_json(self) -> list[dict[str, Any]]:
+        return [q.to_json() for q in self.quality()]
+
+
+def _invert(m: ClockMap) -> ClockMap:
+    """The inverse of a monotonic piecewise-linear map."""
+    kx = m.knots_y.copy()
+    ky = m.knots_x.copy()
+    # after swapping, the origin shifts: new x0 = old y0, new y0 = old x0
+    return ClockMap(m.y0, m.x0, kx, ky, (1.0 / m.end_slope[0], 1.0 / m.end_slope[1]))
+
+
+def compose(outer: ClockMap, inner: ClockMap) -> Callable[[npt.ArrayLike], IntArray]:
+    """``outer ∘ inner`` as a function (e.g. CAN interface → host → GPS)."""
+
+    def f(x: npt.ArrayLike) -> IntArray:
+        return outer(inner(x))
+
+    return f
+
+
+def quality_records(records: Sequence[ClockQuality] | Mapping[str, ClockQuality]) -> list[dict[str, Any]]:
+    """JSON records for ``/rig/timebase``."""
+    items = records.values() if isinstance(records, Mapping) else records
+    return [q.to_json() for q in items]

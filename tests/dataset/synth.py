@@ -1,0 +1,155 @@
+"""A synthetic session of known truth, written by the real recorder (two receivers, CAN, DAQ, truth)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import rig.topics as T  # noqa: N812 - short alias
+from drivers.can.dbc import load_dbc
+from drivers.can.roles import RoleMap, encode_role_frame
+from drivers.optical import OpticalRole, OpticalSensorSpec, SensorKind, correvit_channels
+from rig.recorder import Attachment, Recorder, RecorderOptions, session_metadata
+from sim_devices.vehicle.truth import GroundTruth
+from vsccore.gpstime import gps_ns_to_unix_ns, gps_to_ns
+
+REPO = Path(__file__).resolve().parents[2]
+DBC = REPO / "sim_devices" / "data" / "vsc_sim.dbc"
+ROLES = REPO / "rig" / "examples" / "roles" / "vsc_sim.toml"
+LEAP = 18
+G0 = gps_to_ns(2400, 345_600.0)
+H0 = 1_750_000_000_000_000_000
+DRIFT = 50e-6
+RATE = 1000.0
+TRUE_RATE = RATE * (1 + DRIFT)
+DAQ_G0 = G0 + 250_000_000  # GPS time of DAQ sample 0
+
+
+def host_of_gps(g: np.ndarray) -> np.ndarray:
+    return H0 + np.round((g - G0) * (1 + DRIFT)).astype(np.int64)
+
+
+def utc(g: np.ndarray | int) -> np.ndarray:
+    return np.asarray(g, dtype=np.int64) + (gps_ns_to_unix_ns(0, LEAP))
+
+
+@dataclass
+class Synth:
+    base: Path
+    duration_s: float
+    gnss: dict[str, dict[str, np.ndarray]]
+    can_t_gps: np.ndarray
+    yaw_rate: np.ndarray
+    lat_accel: np.ndarray
+    pulses_gps: np.ndarray
+    daq_n: int
+    vx: np.ndarray
+    vy: np.ndarray
+    truth: GroundTruth
+    truth_t0_utc: int
+    spec: OpticalSensorSpec
+
+
+def optical_spec() -> OpticalSensorSpec:
+    return OpticalSensorSpec(
+        name="s350", kind=SensorKind.BODY, mount_xyz_m=(1.0, 0.0, 0.5),
+        channels=correvit_channels("s350", roles=(OpticalRole.VX, OpticalRole.VY)), min_speed_mps=0.5,
+    )
+
+
+def write_session(out: Path, name: str = "synth", duration_s: float = 20.0, rollover_bytes: int | None = 150_000
+                  ) -> Synth:
+    rng = np.random.default_rng(42)
+    db = load_dbc(DBC)
+    rolemap = RoleMap.from_toml(ROLES, db)
+    meta = session_metadata(session={"output": {"name": name}, "can": [{"name": "can0"}],
+                                     "simulation": {"gnss": {"output_latency_s": 0.02}}},
+                            vehicle={"wheelbase_m": 2.87}, calibration={"mount_offset_deg": 0.1})
+    opts = RecorderOptions(min_free_bytes=0, warn_free_bytes=0, reserve_bytes=0, chunk_size=32 * 1024,
+                           rollover_size_bytes=rollover_bytes)
+    atts = [Attachment.from_file(DBC), Attachment("can0.roles.toml", "application/toml", ROLES.read_bytes())]
+    gnss: dict[str, dict[str, np.ndarray]] = {}
+    with Recorder(out, name, meta, attachments=atts, options=opts) as rec:
+        # --- GNSS, 20 Hz, two receivers; TIME at 1 Hz; MARKTIME of the sync pulses on rover_a
+        pulses = G0 + 500_000_000 + np.cumsum(rng.uniform(1.2, 2.4, int(duration_s / 1.2)) * 1e9).astype(np.int64)
+        pulses = pulses[pulses < G0 + int((duration_s - 0.5) * 1e9)]
+        for r_i, recv in enumerate(("rover_a", "rover_b")):
+            src = rec.source(recv)
+            g = G0 + np.arange(int(duration_s * 20)) * 50_000_000
+            lat = 48.7 + np.cumsum(rng.normal(0, 1e-6, g.size))
+            status = np.where(rng.random(g.size) < 0.05, "INSUFFICIENT_OBS", "SOL_COMPUTED")
+            host = host_of_gps(g) + rng.exponential(3e6, g.size).astype(np.int64) + 20_000_000
+            for k in range(g.size):
+                pos = {"gps_time_ns": int(g[k]), "time_status": "FINESTEERING", "sol_status": str(status[k]),
+                       "pos_type": "NARROW_INT", "lat_deg": float(lat[k]), "lon_deg": 9.18 + r_i * 1e-5,
+                       "height_msl_m": 300.0, "lat_std_m": 0.01, "lon_std_m": 0.01, "height_std_m": 0.02,
+                       "diff_age_s": None}
+                src.put(T.gnss_bestpos(recv), int(utc(g[k])), int(host[k]), pos)
+                vel = {"gps_time_ns": int(g[k]), "sol_status": "SOL_COMPUTED", "vel_type": "DOPPLER_VELOCITY",
+                       "latency_s": 0.0, "hor_speed_mps": 20.0, "track_over_ground_deg": 90.0, "vert_speed_mps": 0.0}
+                src.put(T.gnss_bestvel(recv), int(utc(g[k])), int(host[k]) + 1000, vel)
+                if k % 20 == 0:
+                    tm = {"gps_time_ns": int(g[k]), "clock_status": "VALID", "utc_offset_s": -float(LEAP),
+                          "leap_seconds": LEAP, "utc_status": "VALID"}
+                    src.put(T.gnss_time(recv), int(utc(g[k])), int(host[k]) + 2000, tm)
+            if recv == "rover_a":
+                for p in pulses.tolist():
+                    src.put(T.gnss_marktime("rover_a"), int(utc(p)), int(host_of_gps(np.asarray([p]))[0]) + 30_000_000,
+                            {"gps_time_ns": p, "clock_status": "VALID", "event_input": "MARK1"})
+            gnss[recv] = {"gps": g, "lat": lat, "valid": status == "SOL_COMPUTED"}
+        # --- CAN at 100 Hz, interface clock −30 ppm vs host, in blocks of 50
+        can_src = rec.source("can0")
+        t_can = G0 + 5_000_000 + np.arange(int(duration_s * 100)) * 10_000_000
+        yaw = 0.2 * np.sin(np.arange(t_can.size) / 50.0)  # rad/s
+        ay = 3.0 * np.cos(np.arange(t_can.size) / 70.0)  # m/s^2
+        payloads = np.zeros((t_can.size, 8), dtype=np.uint8)
+        for k in range(t_can.size):
+            p = encode_role_frame(db, rolemap, "ESC_SensorCluster", {"yaw_rate": yaw[k], "lat_accel": ay[k]}, counter=k)
+            payloads[k] = np.frombuffer(p, dtype=np.uint8)
+        h_ev = host_of_gps(t_can)
+        iface = 9_000_000_000 + np.round((h_ev - H0) * (1 - 30e-6)).astype(np.int64)
+        recv_host = h_ev + rng.exponential(0.3e6, t_can.size).astype(np.int64)
+        for b in range(0, t_can.size, 50):
+            sl = slice(b, b + 50)
+            n = t_can[sl].size
+            block = T.pack_can_columns(iface[sl], recv_host[sl], np.full(n, 257), np.full(n, int(T.CanFlag.RX)),
+                                       np.full(n, 8), np.full(n, 8), payloads[sl])
+            can_src.put(T.can_frames("can0"), int(utc(t_can[b])), int(recv_host[sl][-1]), block)
+        # --- DAQ: sync channel + optical vx/vy/valid, 1 kHz nominal (50 ppm fast), blocks of 100 samples
+        daq_src = rec.source("daq1")
+        n_daq = int(duration_s * RATE) - 400
+        kk = np.arange(n_daq)
+        g_k = DAQ_G0 + np.round(kk / TRUE_RATE * 1e9).astype(np.int64)
+        vx = 20.0 + 2.0 * np.sin(kk / 3000.0)
+        vy = 0.5 * np.sin(kk / 1000.0)
+        edge_idx = (pulses - DAQ_G0) / 1e9 * TRUE_RATE
+        sync = np.zeros(n_daq)
+        for e in edge_idx:
+            rise = np.clip((kk - e) / 4.0 + 0.5, 0.0, 1.0)
+            fall = np.clip((kk - e - 100) / 4.0 + 0.5, 0.0, 1.0)
+            sync += 5.0 * (0.5 - 0.5 * np.cos(np.pi * rise)) - 5.0 * (0.5 - 0.5 * np.cos(np.pi * fall))
+        volts = np.vstack([sync, vx * 3.6 * 0.04, vy * 3.6 * 0.04, np.full(n_daq, 5.0)]).astype(np.float32)
+        names = ("sync", "s350_vx", "s350_vy", "s350_valid")
+        for b in range(0, n_daq, 100):
+            blk = T.DaqBlock(b, RATE, names, np.ascontiguousarray(volts[:, b : b + 100]))
+            last = min(b + 99, n_daq - 1)
+            daq_src.put(T.daq_samples("daq1"), int(utc(g_k[b])), int(host_of_gps(g_k[last : last + 1])[0]) + 4_000_000,
+                        T.pack_daq_block(blk))
+        # --- simulator truth at 100 Hz
+        m = int(duration_s * 100)
+        t = np.arange(m) / 100.0
+        names_t = ("east", "north", "yaw", "vx", "vy", "yaw_rate", "ax", "ay", "ax_meas", "ay_meas", "roll",
+                   "roll_rate", "road_wheel_angle", "swa", "ltr")
+        fields: dict[str, Any] = {f: rng.normal(size=m) for f in names_t}
+        truth = GroundTruth(t=t, wheel_speed=rng.normal(size=(m, 4)), wheel_load=rng.normal(size=(m, 4)),
+                            lat0_deg=48.7, lon0_deg=9.18, h0_m=300.0, **fields)
+        truth_src = rec.source("sim")
+        t0 = int(utc(G0))
+        for b in range(0, m, 250):
+            block = T.pack_truth_block(truth, b, min(b + 250, m), t0)
+            truth_src.put(T.TOPIC_SIM_TRUTH, t0 + int(t[b] * 1e9), H0, block)
+        rec.event(T.EventKind.MARK, "operator mark: start of circle", log_time_ns=int(utc(G0 + 3 * 10**9)))
+    return Synth(out / name, duration_s, gnss, t_can, yaw, ay, pulses, n_daq, vx, vy, truth, t0, optical_spec())
