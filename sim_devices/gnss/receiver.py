@@ -1,0 +1,897 @@
+"""The engine of a simulated NovAtel receiver: serial ports on ptys, commands, and a GPS-time log schedule.
+
+:class:`SimReceiver` runs one thread that waits (``select``) on its pty masters, a wake-up pipe and
+the next due time on the injected :class:`~vsccore.clock.Clock` (a ``ScaledClock`` makes it run
+faster than real time), and
+
+- answers abbreviated-ASCII commands (:mod:`sim_devices.gnss.commands`) with ``<OK`` or
+  ``<ERROR:reason`` followed by the port prompt ``[COM1]``, as an OEM7 does;
+- produces the logged messages on GPS time: ``ONTIME period [offset]`` on the grid of GPS seconds
+  of week, ``ONNEW``/``ONCHANGED`` at every solution epoch (``solution_rate_hz``) or, for
+  asynchronous logs (MARKPOS …), at every event; ``ONCE``, ``ONNEXT``, ``ONMARK``;
+- writes each message ``output_latency_s`` (+ uniform jitter) after its data time, serialised on
+  its port at the port's baud rate (a 104-byte BESTPOSB takes 9 ms at 115200 Bd); logs beyond what
+  the baud rate carries (more than 1 s of backlog) are dropped and counted (:meth:`bytes_overrun`);
+- routes a log to the port it was requested on (the port the command came in on, or a named
+  port); a named port that is not wired to a pty swallows its output, as on a real receiver.
+
+Faults for other modules' tests: :meth:`unplug` / :meth:`replug` a port (the stable symlink
+``port_path`` points at the new pty), :meth:`inject` raw bytes, :meth:`pause_logs` /
+:meth:`resume_logs`, :meth:`set_unresponsive` (commands are read and ignored). Requests from other
+threads run on the receiver's own thread, so there are no races on the file descriptors.
+
+Subclasses (:class:`~sim_devices.gnss.rover.SimRover`, :class:`~sim_devices.gnss.base.SimBase`)
+supply the antenna, the RTK state and the message bodies.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import logging
+import math
+import os
+import queue
+import select
+import shutil
+import tempfile
+import threading
+from collections import OrderedDict, deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TypeVar
+
+import numpy as np
+import numpy.typing as npt
+
+from drivers.novatel import (
+    Body,
+    BodyFormat,
+    ClockModelStatus,
+    FrameKind,
+    Framer,
+    Header,
+    Message,
+    PositionType,
+    RawBody,
+    Time,
+    TimeStatus,
+    UTCStatus,
+    encode_abbreviated,
+    encode_ascii,
+    encode_binary,
+    encode_error,
+    encode_ok,
+    encode_prompt,
+)
+from drivers.novatel.messages import LOG_IDS
+from sim_devices.gnss import bodies
+from sim_devices.gnss.antenna import AntennaState
+from sim_devices.gnss.commands import (
+    Command,
+    EventInCommand,
+    FixCommand,
+    InterfaceModeCommand,
+    LogCommand,
+    LogFormat,
+    ReceiverCommandError,
+    SerialConfigCommand,
+    SimpleCommand,
+    Trigger,
+    UnlogAllCommand,
+    UnlogCommand,
+    parse_command,
+)
+from sim_devices.gnss.constellation import Constellation, SatObservation, dops
+from sim_devices.gnss.error_model import GnssErrorModel, GnssErrorParams, RtkState
+from sim_devices.gnss.pty import PtyPort
+from sim_devices.gnss.solution import Solution
+from sim_devices.gnss.timebase import SimTimeBase
+from vsccore.clock import Clock, SystemClock
+from vsccore.errors import DeviceError, DeviceTimeoutError, SimulationError
+from vsccore.gpstime import NS_PER_S, NS_PER_WEEK, gps_ns_to_unix_ns
+
+__all__ = ["SimReceiver", "Solution"]
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+_T = TypeVar("_T")
+
+_WGS84_A = 6378137.0
+_WGS84_E2 = 6.69437999014e-3
+_MAX_BACKLOG_NS = 2 * NS_PER_S
+_MAX_LINE = 1024
+_MAX_PORT_BACKLOG_S = 1.0
+_RTCM_RX_MODES = frozenset({"RTCMV3", "AUTO"})
+_COMMAND_RX_MODES = frozenset({"NOVATEL", "AUTO", "NOVATELBINARY", "NOVATELX", "GENERIC"})
+
+
+@dataclass(slots=True)
+class _LogEntry:
+    port: str
+    name: str
+    fmt: LogFormat
+    trigger: Trigger
+    period_ns: int
+    offset_ns: int
+    seq: int
+    next_due_ns: int | None = None
+
+
+@dataclass(slots=True)
+class _PortState:
+    name: str
+    pty: PtyPort | None
+    baud: int
+    rx_mode: str = "NOVATEL"
+    tx_mode: str = "NOVATEL"
+    responses: bool = True
+    free_at_ns: int = 0
+    pending: deque[tuple[int, bytes]] = field(default_factory=deque)
+    line: bytearray = field(default_factory=bytearray)
+    last_cr: bool = False
+    framer: Framer | None = None
+    bytes_overrun: int = 0
+
+
+class SimReceiver:
+    """Common engine of the simulated receivers (see module docstring).
+
+    Args:
+        name: device name for messages and the symlink file names.
+        timebase: host clock ↔ GPS ↔ truth time of the session.
+        clock: the injected host clock (default: the system clock).
+        port_name: name of the main (command) port, e.g. ``COM1`` or ``USB1``.
+        extra_ports: names of further ports wired to their own pty (a rover's correction port).
+        link_dir: directory for the stable symlinks (default: a private temporary directory,
+            removed by :meth:`stop`).
+        baud: baud rate of every port at power-up (models transmission time).
+        output_latency_s, latency_jitter_s: delay from a message's data time to its first byte.
+        solution_rate_hz: rate of solution epochs (ONNEW/ONCHANGED of synchronous logs).
+        startup_commands: the receiver's saved configuration, applied at power-up and by RESET
+            (e.g. ``("LOG COM1 RTCM1006 ONTIME 1",)``).
+        seed: seed of every random draw of this receiver.
+        enforce_baud: when True, output is garbled and input ignored while the driver's port is
+            set to a baud rate other than the receiver's (for autobaud tests).
+        undulation_m: geoid − ellipsoid separation reported in position logs.
+        error_params: the position/velocity error model.
+        constellation: the synthetic satellites (shared, or one per receiver).
+    """
+
+    #: Logs whose ONNEW/ONCHANGED fire on an event instead of at every solution epoch.
+    ASYNC_LOGS: frozenset[str] = frozenset({"MARKPOS", "MARKTIME", "MARK2POS", "MARK2TIME", "VERSION"})
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        timebase: SimTimeBase,
+        clock: Clock | None = None,
+        port_name: str = "COM1",
+        extra_ports: Sequence[str] = (),
+        link_dir: Path | str | None = None,
+        baud: int = 115200,
+        output_latency_s: float = 0.02,
+        latency_jitter_s: float = 0.002,
+        solution_rate_hz: float = 20.0,
+        startup_commands: Sequence[str] = (),
+        seed: int = 0,
+        enforce_baud: bool = False,
+        undulation_m: float = 47.9,
+        error_params: GnssErrorParams | None = None,
+        constellation: Constellation | None = None,
+    ) -> None:
+        if not name.replace("_", "").replace("-", "").isalnum():
+            raise SimulationError(f"sim receiver name {name!r} must be alphanumeric (with _ or -)")
+        if not (0.0 <= output_latency_s < 1.0 and 0.0 <= latency_jitter_s < 0.5):
+            raise SimulationError(f"sim receiver {name}: output latency {output_latency_s} s / jitter out of range")
+        if not (0.0 < solution_rate_hz <= 100.0):
+            raise SimulationError(f"sim receiver {name}: solution_rate_hz {solution_rate_hz} out of (0, 100]")
+        for pname in (port_name, *extra_ports):
+            if pname not in _HEADER_PORTS:
+                raise SimulationError(f"sim receiver {name}: {pname!r} is not a NovAtel port name (COM1, USB1 …)")
+        if len({port_name, *extra_ports}) != 1 + len(extra_ports):
+            raise SimulationError(f"sim receiver {name}: port names must differ, got {(port_name, *extra_ports)}")
+        self.name = name
+        self.timebase = timebase
+        self.clock: Clock = clock if clock is not None else SystemClock()
+        self.output_latency_s = output_latency_s
+        self.latency_jitter_s = latency_jitter_s
+        self.solution_period_ns = round(NS_PER_S / solution_rate_hz)
+        self.enforce_baud = enforce_baud
+        self.undulation_m = undulation_m
+        self.startup_commands = tuple(startup_commands)
+        self.constellation = constellation if constellation is not None else Constellation()
+        self.error_model = GnssErrorModel(error_params, seed)
+        self._rng = np.random.default_rng(None if seed is None else seed + 7919)
+        self._own_dir = link_dir is None
+        self.link_dir = Path(tempfile.mkdtemp(prefix=f"vsc-sim-{name}-")) if link_dir is None else Path(link_dir)
+        self.main_port = port_name
+        self._ports: dict[str, _PortState] = {}
+        for pname in (port_name, *extra_ports):
+            suffix = "" if pname == port_name else f"-{pname.lower()}"
+            pty = PtyPort(pname, self.link_dir / f"{name}{suffix}")
+            self._ports[pname] = _PortState(pname, pty, baud)
+        self._entries: dict[tuple[str, str], _LogEntry] = {}
+        self._once: list[tuple[int, _LogEntry]] = []
+        self._seq = 0
+        self._next_epoch_ns: int | None = None
+        self._fix: FixCommand | None = None
+        self._events: dict[str, EventInCommand] = {"MARK1": EventInCommand("MARK1", True)}
+        self._ecutoff_deg = 5.0
+        self._config: list[tuple[Command, str]] = []
+        self._saved: list[tuple[Command, str]] = []
+        self._solutions: OrderedDict[int, Solution] = OrderedDict()
+        self._geometry_cache: tuple[int, tuple[SatObservation, ...]] | None = None
+        self._logs_paused = False
+        self._unresponsive = False
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._requests: queue.SimpleQueue[tuple[Callable[[], object], list[object], threading.Event]] = (
+            queue.SimpleQueue()
+        )
+        self._wake_r: int | None = None
+        self._wake_w: int | None = None
+        self._started = False
+        self.commands_received = 0
+        self.errors_sent = 0
+        self.logs_unrouted = 0
+        self.error: BaseException | None = None
+        self._leap_seconds = timebase.leap_seconds
+        self._event_cursor_ns = -1
+        self._last_event_ns: int | None = None
+
+    # --- public API ---------------------------------------------------------------------------
+
+    @property
+    def port_path(self) -> str:
+        """Stable path of the main port (a symlink to the current ``/dev/pts/N``) to open with pyserial."""
+        return str(self._pty(self.main_port).path)
+
+    @property
+    def device_path(self) -> str | None:
+        """Current ``/dev/pts/N`` of the main port (None while unplugged)."""
+        return self._pty(self.main_port).device_path
+
+    def port(self, name: str | None = None) -> PtyPort:
+        """The pty of a port (main port by default)."""
+        return self._pty(name or self.main_port)
+
+    def start(self) -> None:
+        """Power up: create the ptys, apply the saved configuration, start the thread."""
+        if self._started:
+            raise DeviceError(f"sim receiver {self.name}: already started")
+        self._started = True
+        try:
+            for st in self._ports.values():
+                assert st.pty is not None
+                st.pty.plug()
+            self._wake_r, self._wake_w = os.pipe()
+            os.set_blocking(self._wake_w, False)
+            now = self.gps_now_ns()
+            self._event_cursor_ns = now
+            self._next_epoch_ns = self._grid_at_or_after(now, self.solution_period_ns, 0)
+            self._saved = [(self._parse_startup(c), self.main_port) for c in self.startup_commands]
+            self._restore(self._saved)
+        except BaseException:
+            self._close_fds()
+            raise
+        self._thread = threading.Thread(target=self._run, name=f"sim-gnss-{self.name}", daemon=True)
+        self._thread.start()
+        log.info("sim receiver %s started on %s", self.name, self.port_path)
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop the thread, close every pty and remove the symlinks. Idempotent."""
+        self._stop.set()
+        self._wake()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                raise DeviceTimeoutError(f"sim receiver {self.name}: thread did not stop within {timeout_s} s")
+            self._thread = None
+        self._close_fds()
+
+    def __enter__(self) -> SimReceiver:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def unplug(self, port: str | None = None) -> None:
+        """Pull the cable of a port (main port by default): the pty closes, the symlink goes."""
+        self._call(lambda: self._pty(port or self.main_port).unplug())
+
+    def replug(self, port: str | None = None) -> str:
+        """Plug a port back in on a new pty; returns the new ``/dev/pts/N`` (``port_path`` stays)."""
+
+        def do() -> str:
+            pty = self._pty(port or self.main_port)
+            pty.plug()
+            st = self._ports[pty.name]
+            st.line.clear()
+            st.pending.clear()
+            st.framer = None
+            return pty.device_path or ""
+
+        return self._call(do)
+
+    def inject(self, data: bytes, port: str | None = None) -> None:
+        """Write raw bytes (garbage, truncated frames …) to a port now."""
+        self._call(lambda: self._pty(port or self.main_port).write(bytes(data)))
+
+    def pause_logs(self) -> None:
+        """Stop streaming logs (commands are still answered)."""
+        self._logs_paused = True
+
+    def resume_logs(self) -> None:
+        """Resume streaming logs."""
+        self._logs_paused = False
+
+    def set_unresponsive(self, flag: bool = True) -> None:
+        """When True, commands are read and ignored (a hung receiver); logs go on unless paused."""
+        self._unresponsive = flag
+
+    def bytes_overrun(self, port: str | None = None) -> int:
+        """Bytes of logs dropped because the port's baud rate could not carry them."""
+        return self._ports[port or self.main_port].bytes_overrun
+
+    def logged(self) -> list[tuple[str, str, str, float]]:
+        """The active log requests as (port, name + format suffix, trigger, period s)."""
+        return self._call(
+            lambda: [
+                (e.port, e.name + e.fmt.value, e.trigger.value, e.period_ns / NS_PER_S) for e in self._entries.values()
+            ]
+        )
+
+    # --- subclass hooks ------------------------------------------------------------------------
+
+    def known_logs(self) -> frozenset[str]:
+        """Log names the LOG command accepts."""
+        return frozenset({"BESTPOS", "BESTVEL", "BESTXYZ", "TIME", "PSRDOP", "VERSION", "GPGGA"})
+
+    def antenna_state(self, t_gps_ns: int) -> AntennaState:
+        """True antenna state at a GPS time."""
+        raise NotImplementedError
+
+    def rtk_state(self, t_gps_ns: int) -> RtkState:
+        """Solution type and differential age at a GPS time (no corrections: SINGLE)."""
+        return RtkState(PositionType.SINGLE, 0.0, "")
+
+    def message(self, entry_name: str, fmt: LogFormat, t_gps_ns: int, batch: Sequence[str]) -> Body | bytes | None:
+        """Body (or raw bytes written as they are) of a log at data time ``t_gps_ns``; None = nothing."""
+        return self._common_message(entry_name, fmt, t_gps_ns)
+
+    def next_event_ns(self, after_ns: int) -> int | None:
+        """Time of the next asynchronous event (mark input …) after ``after_ns``; None if none."""
+        return None
+
+    def on_event(self, t_gps_ns: int) -> list[str]:
+        """Process the event at ``t_gps_ns``; return the names of the asynchronous logs it renews."""
+        return []
+
+    def on_correction_frame(self, raw: bytes, rx_gps_ns: int) -> None:
+        """A CRC-valid RTCM3 frame arrived on a port that accepts corrections."""
+
+    def apply_simple(self, cmd: SimpleCommand) -> None:
+        """Apply a simple configuration command (ECUTOFF …)."""
+        if cmd.name == "ECUTOFF":
+            self._ecutoff_deg = float(cmd.args[0])
+
+    # --- time helpers ----------------------------------------------------------------------------
+
+    def gps_now_ns(self) -> int:
+        """True GPS time now (on the injected clock)."""
+        return self.timebase.gps_ns(self.clock.now_ns())
+
+    @staticmethod
+    def _grid_at_or_after(t_ns: int, period_ns: int, offset_ns: int) -> int:
+        k = -((offset_ns - t_ns) // period_ns)  # ceil((t - offset) / period)
+        return k * period_ns + offset_ns
+
+    # --- solution ------------------------------------------------------------------------------
+
+    def geometry(self, t_gps_ns: int, ant: AntennaState) -> tuple[SatObservation, ...]:
+        """Visible satellites (above 5°), recomputed once per GPS second."""
+        sec = t_gps_ns // NS_PER_S
+        if self._geometry_cache is None or self._geometry_cache[0] != sec:
+            vis = self.constellation.visible(ant.lat_deg, ant.lon_deg, ant.height_m, float(sec), 5.0)
+            self._geometry_cache = (sec, tuple(vis))
+        return self._geometry_cache[1]
+
+    def solution(self, t_gps_ns: int) -> Solution:
+        """The solution at data time ``t_gps_ns`` (cached: every log of one epoch reports the same)."""
+        cached = self._solutions.get(t_gps_ns)
+        if cached is not None:
+            return cached
+        ant = self.antenna_state(t_gps_ns)
+        sats = self.geometry(t_gps_ns, ant)
+        in_soln = sum(1 for s in sats if s.elevation_deg >= self._ecutoff_deg)
+        fix = self._fix
+        if fix is not None and fix.kind == "POSITION":
+            lat, lon, hgt = fix.values
+            sol = Solution(
+                t_gps_ns, PositionType.FIXEDPOS, lat, lon, hgt + self.undulation_m, (0.0, 0.0, 0.0),
+                (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, "", sats, in_soln, ant,
+            )
+        else:
+            rtk = self.rtk_state(t_gps_ns)
+            err = self.error_model.sample(t_gps_ns, rtk.pos_type)
+            de, dn, du = (float(v) for v in err.position_enu_m)
+            lat, lon, h = _offset_geodetic(ant.lat_deg, ant.lon_deg, ant.height_m, de, dn, du)
+            dv = err.velocity_enu_mps
+            sol = Solution(
+                t_gps_ns,
+                rtk.pos_type,
+                lat,
+                lon,
+                h,
+                _tuple3(err.position_sigma_enu_m),
+                (ant.v_east_mps + float(dv[0]), ant.v_north_mps + float(dv[1]), ant.v_up_mps + float(dv[2])),
+                _tuple3(err.velocity_sigma_enu_mps),
+                rtk.diff_age_s,
+                rtk.station_id,
+                sats,
+                in_soln,
+                ant,
+            )
+        self._solutions[t_gps_ns] = sol
+        while len(self._solutions) > 16:
+            self._solutions.popitem(last=False)
+        return sol
+
+    # --- message bodies shared by all receivers -----------------------------------------------------
+
+    def _common_message(self, name: str, fmt: LogFormat, t_ns: int) -> Body | bytes | None:
+        if name == "BESTPOS":
+            return bodies.bestpos(self.solution(t_ns), self.undulation_m)
+        if name == "BESTVEL":
+            return bodies.bestvel(self.solution(t_ns))
+        if name == "BESTXYZ":
+            return bodies.bestxyz(self.solution(t_ns))
+        if name == "PSRDOP":
+            sol = self.solution(t_ns)
+            return bodies.psrdop(
+                [s for s in sol.satellites if s.elevation_deg >= self._ecutoff_deg], self._ecutoff_deg
+            )
+        if name == "TIME":
+            return self._time_body(t_ns)
+        if name == "VERSION":
+            return bodies.version(fmt)
+        if name == "GPGGA":
+            sol = self.solution(t_ns)
+            unix = gps_ns_to_unix_ns(t_ns, self._leap_seconds)
+            utc = dt.datetime.fromtimestamp(unix // NS_PER_S, tz=dt.UTC)
+            sec = utc.second + (unix % NS_PER_S) / NS_PER_S
+            used = [s for s in sol.satellites if s.elevation_deg >= self._ecutoff_deg]
+            return bodies.gpgga(sol, (utc.hour, utc.minute, sec), self.undulation_m, dops(used)[2])
+        return None
+
+    def _time_body(self, t_ns: int) -> Time:
+        unix = gps_ns_to_unix_ns(t_ns, self._leap_seconds)
+        utc = dt.datetime.fromtimestamp(unix // NS_PER_S, tz=dt.UTC)
+        ms = utc.second * 1000 + (unix % NS_PER_S) // 1_000_000
+        offset = float(self._rng.normal(0.0, 2e-10))
+        return Time(
+            ClockModelStatus.VALID, offset, 1.0e-9, -float(self._leap_seconds), utc.year, utc.month, utc.day,
+            utc.hour, utc.minute, int(ms), UTCStatus.VALID,
+        )
+
+    # --- command handling ------------------------------------------------------------------------
+
+    def _parse_startup(self, line: str) -> Command:
+        try:
+            return parse_command(line, self.known_logs())
+        except ReceiverCommandError as exc:
+            raise SimulationError(
+                f"sim receiver {self.name}: startup command {line!r} rejected: {exc.reason}"
+            ) from None
+
+    def _handle_line(self, st: _PortState, raw: bytes) -> None:
+        if self._unresponsive:
+            return
+        try:
+            text = raw.decode("ascii")
+        except UnicodeDecodeError:
+            text = None
+        if text is not None and not text.strip():
+            self._reply(st, None)
+            return
+        self.commands_received += 1
+        if text is None or not text.isprintable():
+            self._reply(st, "Invalid Message ID")
+            return
+        try:
+            cmd = parse_command(text, self.known_logs())
+            self._apply(cmd, st.name)
+        except ReceiverCommandError as exc:
+            log.debug("sim receiver %s: %r rejected: %s", self.name, text, exc.reason)
+            self._reply(st, exc.reason)
+            return
+        self._reply(st, "")
+        if isinstance(cmd, SerialConfigCommand):  # the new rate applies after the response
+            target = self._ports.get(self._resolve_port(cmd.port, st.name))
+            if target is not None:
+                target.baud = cmd.baud
+
+    def _reply(self, st: _PortState, error: str | None) -> None:
+        """``error`` "" → ``<OK``; text → ``<ERROR:text``; None → prompt only."""
+        if not st.responses or st.pty is None:
+            return
+        data = b""
+        if error == "":
+            data = encode_ok()
+        elif error is not None:
+            data = encode_error(error)
+            self.errors_sent += 1
+        self._write(st, data + encode_prompt(st.name))
+
+    def _resolve_port(self, port: str | None, this: str) -> str:
+        return this if port is None or port == "THISPORT" else port
+
+    def _apply(self, cmd: Command, this_port: str, *, record: bool = True) -> None:
+        if isinstance(cmd, LogCommand):
+            self._add_log(cmd, this_port)
+        elif isinstance(cmd, UnlogCommand):
+            key = (self._resolve_port(cmd.port, this_port), cmd.name)
+            if key not in self._entries:
+                raise ReceiverCommandError("Message Not Found")
+            del self._entries[key]
+            self._once = [(t, e) for t, e in self._once if (e.port, e.name) != key]
+        elif isinstance(cmd, UnlogAllCommand):
+            port = self._resolve_port(cmd.port, this_port)
+            every = port in ("ALL", "ALL_PORTS")
+            for key in [k for k in self._entries if every or k[0] == port]:
+                del self._entries[key]
+            self._once = [(t, e) for t, e in self._once if not (every or e.port == port)]
+        elif isinstance(cmd, InterfaceModeCommand):
+            st = self._ports.get(self._resolve_port(cmd.port, this_port))
+            if st is not None:
+                st.rx_mode, st.tx_mode, st.responses = cmd.rx_type, cmd.tx_type, cmd.responses
+        elif isinstance(cmd, FixCommand):
+            self._fix = None if cmd.kind in ("NONE", "AUTO") else cmd
+            self._solutions.clear()
+        elif isinstance(cmd, EventInCommand):
+            self._events[cmd.mark] = cmd
+        elif isinstance(cmd, SimpleCommand):
+            if cmd.name == "SAVECONFIG":
+                self._saved = list(self._config)
+                return
+            if cmd.name in ("RESET", "FRESET"):
+                self._restore([] if cmd.name == "FRESET" else self._saved, factory=cmd.name == "FRESET")
+                return
+            self.apply_simple(cmd)
+        if record and not isinstance(cmd, SerialConfigCommand):
+            self._config.append((cmd, this_port))
+
+    def _restore(self, config: Sequence[tuple[Command, str]], factory: bool = False) -> None:
+        self._entries.clear()
+        self._once.clear()
+        self._fix = None
+        self._events = {"MARK1": EventInCommand("MARK1", True)}
+        self._ecutoff_deg = 5.0
+        self._config = []
+        if factory:
+            self._saved = []
+        for st in self._ports.values():
+            st.rx_mode = "NOVATEL" if st.name == self.main_port else "AUTO"
+            st.tx_mode = "NOVATEL"
+            st.responses = True
+        for cmd, port in config:
+            try:
+                self._apply(cmd, port)
+            except ReceiverCommandError as exc:
+                log.warning("sim receiver %s: saved command %s rejected: %s", self.name, cmd, exc.reason)
+
+    def _add_log(self, cmd: LogCommand, this_port: str) -> None:
+        port = self._resolve_port(cmd.port, this_port)
+        self._seq += 1
+        entry = _LogEntry(
+            port, cmd.name, cmd.fmt, cmd.trigger, round(cmd.period_s * NS_PER_S), round(cmd.offset_s * NS_PER_S),
+            self._seq,
+        )
+        now = self.gps_now_ns()
+        if cmd.trigger is Trigger.ONTIME:
+            entry.next_due_ns = self._grid_at_or_after(now, entry.period_ns, entry.offset_ns)
+        elif cmd.trigger is Trigger.ONCE:
+            horizon = now - round(self.output_latency_s * NS_PER_S)
+            if cmd.name in self.ASYNC_LOGS and cmd.name != "VERSION":
+                t = self._last_event_ns
+                if t is not None:
+                    self._once.append((t, entry))
+            else:
+                t = (horizon // self.solution_period_ns) * self.solution_period_ns
+                self._once.append((t, entry))
+            return
+        self._entries[(port, cmd.name)] = entry
+
+    # --- production ------------------------------------------------------------------------------
+
+    def _needs_epochs(self) -> bool:
+        return any(
+            e.trigger in (Trigger.ONNEW, Trigger.ONCHANGED, Trigger.ONNEXT) and e.name not in self.ASYNC_LOGS
+            for e in self._entries.values()
+        )
+
+    def _next_data_time(self) -> int | None:
+        times = [e.next_due_ns for e in self._entries.values() if e.next_due_ns is not None]
+        times.extend(t for t, _ in self._once)
+        if self._needs_epochs() and self._next_epoch_ns is not None:
+            times.append(self._next_epoch_ns)
+        ev = self.next_event_ns(self._event_cursor_ns)
+        if ev is not None:
+            times.append(ev)
+        return min(times) if times else None
+
+    def _produce(self, horizon_ns: int) -> None:
+        floor = horizon_ns - _MAX_BACKLOG_NS
+        if self._next_epoch_ns is None or self._next_epoch_ns < floor:
+            self._next_epoch_ns = self._grid_at_or_after(max(floor, horizon_ns - self.solution_period_ns),
+                                                         self.solution_period_ns, 0)
+        for e in self._entries.values():
+            if e.next_due_ns is not None and e.next_due_ns < floor:
+                e.next_due_ns = self._grid_at_or_after(floor, e.period_ns, e.offset_ns)
+        if self._event_cursor_ns < floor:
+            self._event_cursor_ns = floor
+        while True:
+            t = self._next_data_time()
+            if t is None or t > horizon_ns:
+                break
+            batch: list[_LogEntry] = []
+            once_due = [item for item in self._once if item[0] <= t]
+            if once_due:
+                self._once = [item for item in self._once if item[0] > t]
+                batch.extend(e for _, e in once_due)
+            ev = self.next_event_ns(self._event_cursor_ns)
+            if ev is not None and ev <= t:
+                self._event_cursor_ns = ev
+                self._last_event_ns = ev
+                renewed = set(self.on_event(ev))
+                batch.extend(e for e in self._entries.values() if self._fires_on_event(e, renewed))
+                self._emit_batch(ev, batch)
+                continue
+            if self._next_epoch_ns is not None and self._next_epoch_ns <= t:
+                if self._needs_epochs():
+                    for e in list(self._entries.values()):
+                        if e.name in self.ASYNC_LOGS:
+                            continue
+                        if e.trigger in (Trigger.ONNEW, Trigger.ONCHANGED):
+                            batch.append(e)
+                        elif e.trigger is Trigger.ONNEXT:
+                            batch.append(e)
+                            del self._entries[(e.port, e.name)]
+                self._next_epoch_ns += self.solution_period_ns
+            for e in self._entries.values():
+                if e.next_due_ns is not None and e.next_due_ns <= t:
+                    batch.append(e)
+                    e.next_due_ns += e.period_ns
+            self._emit_batch(t, batch)
+
+    def _fires_on_event(self, e: _LogEntry, renewed: set[str]) -> bool:
+        if e.name in renewed:
+            return e.trigger in (Trigger.ONNEW, Trigger.ONCHANGED)
+        return e.trigger is Trigger.ONMARK and e.name not in self.ASYNC_LOGS
+
+    def _emit_batch(self, t_ns: int, batch: list[_LogEntry]) -> None:
+        if not batch:
+            return
+        batch.sort(key=lambda e: e.seq)
+        names = [e.name for e in batch]
+        for e in batch:
+            self._emit(e, t_ns, names)
+
+    def _emit(self, entry: _LogEntry, t_ns: int, batch: Sequence[str]) -> None:
+        body = self.message(entry.name, entry.fmt, t_ns, batch)
+        if body is None or self._logs_paused:
+            return
+        st = self._ports.get(entry.port)
+        if st is None or st.pty is None:  # a port with nothing wired to it swallows its output
+            self.logs_unrouted += 1
+            return
+        data = body if isinstance(body, bytes) else self._encode(entry, body, t_ns)
+        backlog_s = (sum(len(d) for _, d in st.pending) + len(data)) * 10 / st.baud
+        if backlog_s > _MAX_PORT_BACKLOG_S:  # more logged than the baud rate carries: the port overruns
+            st.bytes_overrun += len(data)
+            return
+        jitter = float(self._rng.uniform(0.0, self.latency_jitter_s)) if self.latency_jitter_s > 0 else 0.0
+        ready = self.timebase.clock_ns(t_ns) + round((self.output_latency_s + jitter) * NS_PER_S)
+        st.pending.append((ready, data))
+
+    def _encode(self, entry: _LogEntry, body: Message | RawBody, t_ns: int) -> bytes:
+        header = Header(
+            message_name=entry.name,
+            message_id=LOG_IDS.get(entry.name, 0),
+            port=entry.port,
+            sequence=0,
+            idle_time_pct=80.0,
+            time_status=TimeStatus.FINESTEERING,
+            week=t_ns // NS_PER_WEEK,
+            seconds=(t_ns % NS_PER_WEEK) / NS_PER_S,
+            receiver_status=0,
+            reserved=0xB1F6,
+            sw_version=16809,
+        )
+        if entry.fmt is LogFormat.BINARY:
+            if isinstance(body, RawBody) and body.fmt is not BodyFormat.BINARY:
+                raise SimulationError(f"sim receiver {self.name}: {entry.name} has no binary body")
+            return encode_binary(header, body)
+        if entry.fmt is LogFormat.ASCII:
+            return encode_ascii(header, body)
+        if isinstance(body, RawBody):
+            text = body.data.decode("latin-1").replace(",", " ")
+            body = RawBody(f"<     {text}\r\n".encode("latin-1"), BodyFormat.ABBREVIATED)
+        return encode_abbreviated(header, body)
+
+    # --- output ----------------------------------------------------------------------------------
+
+    def _write(self, st: _PortState, data: bytes) -> None:
+        pty = st.pty
+        if pty is None or not data:
+            return
+        if self.enforce_baud:
+            actual = pty.slave_baud()
+            if actual is not None and actual != st.baud:
+                data = bytes(b ^ 0xA5 for b in data[: max(1, len(data) * actual // max(st.baud, 1))])
+        pty.write(data)
+
+    def _flush(self, now_ns: int) -> int | None:
+        """Write what is due; return the clock time of the next pending write (None if nothing)."""
+        nxt: int | None = None
+        for st in self._ports.values():
+            while st.pending:
+                ready, data = st.pending[0]
+                start = max(ready, st.free_at_ns)
+                done = start + len(data) * 10 * NS_PER_S // st.baud
+                if done > now_ns:
+                    nxt = done if nxt is None else min(nxt, done)
+                    break
+                st.pending.popleft()
+                st.free_at_ns = done
+                self._write(st, data)
+        return nxt
+
+    # --- thread ------------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        speed = float(getattr(self.clock, "speed", 1.0))
+        latency_ns = round(self.output_latency_s * NS_PER_S)
+        try:
+            while not self._stop.is_set():
+                self._serve_requests()
+                now = self.clock.now_ns()
+                self._produce(self.timebase.gps_ns(now) - latency_ns)
+                next_write = self._flush(now)
+                wake: int | None = next_write
+                t_data = self._next_data_time()
+                if t_data is not None:
+                    c = self.timebase.clock_ns(t_data) + latency_ns
+                    wake = c if wake is None else min(wake, c)
+                timeout = 0.1 if wake is None else min(0.1, max(0.0, (wake - self.clock.now_ns()) / speed / NS_PER_S))
+                fds = [st.pty.master_fd for st in self._ports.values() if st.pty is not None and st.pty.connected]
+                assert self._wake_r is not None
+                readable, _, _ = select.select([self._wake_r, *(fd for fd in fds if fd is not None)], [], [], timeout)
+                for fd in readable:
+                    if fd == self._wake_r:
+                        with contextlib.suppress(BlockingIOError):
+                            os.read(fd, 4096)
+                        continue
+                    for st in self._ports.values():
+                        if st.pty is not None and st.pty.master_fd == fd:
+                            data = st.pty.read()
+                            if data:
+                                self._on_input(st, data)
+        except BaseException as exc:
+            self.error = exc
+            log.exception("sim receiver %s: thread failed", self.name)
+            raise
+        finally:
+            self._serve_requests()
+
+    def _on_input(self, st: _PortState, data: bytes) -> None:
+        if self.enforce_baud and st.pty is not None:
+            actual = st.pty.slave_baud()
+            if actual is not None and actual != st.baud:
+                return
+        # AUTO on the command port means commands; on any other port it means corrections.
+        if (st.rx_mode in _RTCM_RX_MODES and st.name != self.main_port) or st.rx_mode == "RTCMV3":
+            self._on_rtcm_bytes(st, data)
+            return
+        if st.rx_mode not in _COMMAND_RX_MODES:
+            return
+        for byte in data:
+            if byte in (0x0D, 0x0A):
+                if byte == 0x0A and st.last_cr:
+                    st.last_cr = False
+                    continue
+                st.last_cr = byte == 0x0D
+                line = bytes(st.line)
+                st.line.clear()
+                self._handle_line(st, line)
+            else:
+                st.last_cr = False
+                if len(st.line) < _MAX_LINE:
+                    st.line.append(byte)
+
+    def _on_rtcm_bytes(self, st: _PortState, data: bytes) -> None:
+        if st.framer is None:
+            st.framer = Framer(decode_logs=False, decode_nmea=False, decode_rtcm=False)
+        framer = st.framer
+        rx = self.gps_now_ns()
+        for frame in framer.feed(data):
+            if frame.kind is FrameKind.RTCM3:
+                self.on_correction_frame(frame.raw, rx)
+
+    def _wake(self) -> None:
+        if self._wake_w is not None:
+            with contextlib.suppress(BlockingIOError, OSError):
+                os.write(self._wake_w, b"x")
+
+    def _serve_requests(self) -> None:
+        while True:
+            try:
+                fn, result, done = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                result.append(fn())
+            except BaseException as exc:
+                result.append(exc)
+            done.set()
+
+    def _call(self, fn: Callable[[], _T], timeout_s: float = 5.0) -> _T:
+        thread = self._thread
+        if thread is None or not thread.is_alive() or threading.current_thread() is thread:
+            return fn()
+        result: list[object] = []
+        done = threading.Event()
+        self._requests.put((fn, result, done))
+        self._wake()
+        if not done.wait(timeout_s):
+            raise DeviceTimeoutError(f"sim receiver {self.name}: request not served within {timeout_s} s")
+        value = result[0]
+        if isinstance(value, BaseException):
+            raise value
+        return value  # type: ignore[return-value]
+
+    def _pty(self, name: str) -> PtyPort:
+        st = self._ports.get(name)
+        if st is None or st.pty is None:
+            raise DeviceError(f"sim receiver {self.name}: no port {name!r} (has {sorted(self._ports)})")
+        return st.pty
+
+    def _close_fds(self) -> None:
+        for st in self._ports.values():
+            if st.pty is not None:
+                st.pty.unplug()
+        for fd in (self._wake_r, self._wake_w):
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self._wake_r = self._wake_w = None
+        if self._own_dir:
+            shutil.rmtree(self.link_dir, ignore_errors=True)
+
+
+_HEADER_PORTS = frozenset(
+    {"COM1", "COM2", "COM3", "COM4", "COM5", "COM6", "USB1", "USB2", "USB3", "ICOM1", "ICOM2", "ICOM3", "NCOM1",
+     "NCOM2", "NCOM3", "XCOM1", "XCOM2", "XCOM3", "AUX", "ETH1", "FILE"}
+)
+
+
+def _tuple3(a: FloatArray) -> tuple[float, float, float]:
+    return (float(a[0]), float(a[1]), float(a[2]))
+
+
+def _offset_geodetic(lat_deg: float, lon_deg: float, h_m: float, de: float, dn: float, du: float
+                     ) -> tuple[float, float, float]:
+    """Geodetic position of a small ENU offset (m) from a point (WGS 84 radii of curvature)."""
+    lat = math.radians(lat_deg)
+    s = math.sin(lat)
+    w = math.sqrt(1.0 - _WGS84_E2 * s * s)
+    n_radius = _WGS84_A / w
+    m_radius = _WGS84_A * (1.0 - _WGS84_E2) / (w * w * w)
+    dlat = dn / (m_radius + h_m)
+    dlon = de / ((n_radius + h_m) * math.cos(lat))
+    return lat_deg + math.degrees(dlat), lon_deg + math.degrees(dlon), h_m + du
