@@ -25,6 +25,10 @@ class ChecksumError(DecodeError):
     """A frame's CRC or checksum does not verify."""
 
 
+class EncodeError(RigError, ValueError):
+    """A record could not be encoded for the wire (a value does not fit its field; the message says which)."""
+
+
 class DeviceError(RigError, OSError):
     """A device (receiver, CAN interface, DAQ) failed or is unreachable."""
 
@@ -55,3 +59,19 @@ class SimulationError(RigError, ValueError):
 
 class AnalysisError(RigError, ValueError):
     """An analysis could not run on the data given."""
+
+
+class NtripError(DeviceError):
+    """An NTRIP caster refused a request or broke the protocol (the message names caster and mountpoint)."""
+
+
+class NtripAuthError(NtripError):
+    """An NTRIP caster refused the credentials (401); retrying would not help."""
+
+
+class NtripMountpointError(NtripError):
+    """An NTRIP caster does not serve the mountpoint asked for (the message lists the ones it has)."""
+
+
+class CommandTimeoutError(CommandError, DeviceTimeoutError):
+    """A device did not answer a command in time (the message names the device, port and command)."""

@@ -1,0 +1,132 @@
+"""NovAtel codec: pure bytes in / typed messages out, and back. No I/O, no threads.
+
+Decoding a stream::
+
+    framer = Framer()
+    for frame in framer.feed(chunk):          # any chunking; frames are reassembled
+        if frame.log and isinstance(frame.log.body, BestPos):
+            ...
+    framer.finish()                            # end of stream
+    framer.stats                               # frames by kind, skipped bytes by reason, CRC failures
+
+or ``for frame in FrameReader(fileobj): ...`` for anything with ``read(n)``.
+
+Encoding (the simulated receiver)::
+
+    header = make_header(body, week=2300, seconds=345600.0, port="COM1")
+    encode_binary(header, body)   # AA 44 12 … CRC
+    encode_ascii(header, body)    # #BESTPOSA,…*xxxxxxxx\\r\\n
+    encode_ok(); encode_error("Invalid Message ID"); encode_prompt("COM1")
+
+Modules: ``crc`` (checksums), ``enums``, ``messages`` (dataclasses), ``layouts`` (declarative
+field tables and body codecs), ``binary`` / ``ascii`` (one frame each way), ``framer`` (stream),
+``encode`` (all encoders), ``jsonview`` (JSON-able dicts).
+"""
+
+from drivers.novatel.ascii import decode_abbreviated, decode_ascii, parse_prompt, parse_response
+from drivers.novatel.binary import decode_binary
+from drivers.novatel.crc import crc24q, novatel_crc32, xor_checksum
+from drivers.novatel.encode import (
+    encode_abbreviated,
+    encode_ascii,
+    encode_binary,
+    encode_error,
+    encode_ok,
+    encode_prompt,
+    encode_response,
+)
+from drivers.novatel.enums import (
+    ClockModelStatus,
+    Datum,
+    PositionType,
+    SolutionStatus,
+    TimeStatus,
+    UTCStatus,
+    VelocityType,
+)
+from drivers.novatel.framer import Frame, FrameKind, Framer, FrameReader, FramerStats, SkipReason, iter_frames
+from drivers.novatel.jsonview import frame_to_dict, log_to_dict
+from drivers.novatel.messages import (
+    LOG_IDS,
+    MESSAGE_TYPES,
+    BestPos,
+    BestVel,
+    BestXyz,
+    Body,
+    BodyFormat,
+    Header,
+    Heading,
+    Heading2,
+    Log,
+    Mark2Pos,
+    Mark2Time,
+    MarkPos,
+    MarkTime,
+    Message,
+    Prompt,
+    PsrDop,
+    RawBody,
+    Response,
+    ShortHeader,
+    Time,
+    make_header,
+    make_short_header,
+)
+
+__all__ = [
+    "LOG_IDS",
+    "MESSAGE_TYPES",
+    "BestPos",
+    "BestVel",
+    "BestXyz",
+    "Body",
+    "BodyFormat",
+    "ClockModelStatus",
+    "Datum",
+    "Frame",
+    "FrameKind",
+    "FrameReader",
+    "Framer",
+    "FramerStats",
+    "Header",
+    "Heading",
+    "Heading2",
+    "Log",
+    "Mark2Pos",
+    "Mark2Time",
+    "MarkPos",
+    "MarkTime",
+    "Message",
+    "PositionType",
+    "Prompt",
+    "PsrDop",
+    "RawBody",
+    "Response",
+    "ShortHeader",
+    "SkipReason",
+    "SolutionStatus",
+    "Time",
+    "TimeStatus",
+    "UTCStatus",
+    "VelocityType",
+    "crc24q",
+    "decode_abbreviated",
+    "decode_ascii",
+    "decode_binary",
+    "encode_abbreviated",
+    "encode_ascii",
+    "encode_binary",
+    "encode_error",
+    "encode_ok",
+    "encode_prompt",
+    "encode_response",
+    "frame_to_dict",
+    "iter_frames",
+    "log_to_dict",
+    "make_header",
+    "make_short_header",
+    "novatel_crc32",
+    "parse_prompt",
+    "parse_response",
+    "xor_checksum",
+]

@@ -1,0 +1,642 @@
+"""Framer: finds and validates frames in a raw byte stream from a NovAtel port, in any mix.
+
+Recognised frames (:class:`FrameKind`):
+
+- NovAtel ASCII logs ``#…;…*xxxxxxxx`` and short ASCII ``%…;…*xxxxxxxx`` (CRC-32),
+- NovAtel binary logs, long header ``AA 44 12`` and short header ``AA 44 13`` (CRC-32),
+- abbreviated ASCII: responses ``<OK`` / ``<ERROR:…``, logs ``<NAME port …`` plus their
+  ``<     …`` continuation lines, and port prompts ``[COM1]``, ``[USB1]``, ``[ICOM1]``,
+- NMEA 0183 sentences ``$…*hh`` (XOR checksum; fields decoded by pynmea2),
+- RTCM3 frames ``D3``, 10-bit length, CRC-24Q (decoded by pyrtcm).
+
+The framer is incremental: :meth:`Framer.feed` takes any chunk and returns the frames completed
+so far (a frame split across chunks is reassembled); :meth:`Framer.finish` ends the stream.
+:class:`FrameReader` drives it from any object with ``read(n)``. Sync candidates are found with
+one compiled regular expression (a C-level scan), CRCs run in C (zlib) for NovAtel frames.
+
+A frame whose CRC fails is never returned. Every byte that is not part of a returned frame is
+counted in :class:`FramerStats` by reason (garbage, CRC failure, truncated, oversize), and CR/LF
+line ends between text frames are counted apart. After a rejection the framer resumes the
+search one byte after the rejected start, so a good frame hidden inside a bad one's claimed
+length is still found. ``Frame.raw`` is the exact frame bytes, without the CR LF that follows
+text frames.
+
+An abbreviated-ASCII log has no end marker: it is complete when the next byte after a
+continuation line is not another continuation line. At the end of a chunk the framer therefore
+waits for the next byte (or :meth:`Framer.finish`; a receiver session may call
+:meth:`Framer.flush` after a read timeout).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import zlib
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any, Protocol
+
+import pynmea2
+from pyrtcm import RTCMReader
+
+from drivers.novatel.ascii import decode_abbreviated_lines, decode_ascii_verified
+from drivers.novatel.binary import decode_verified
+from drivers.novatel.crc import crc24q, novatel_crc32, xor_checksum
+from drivers.novatel.messages import Log, Prompt, Response, fast_constructor
+from vsccore.errors import DecodeError
+
+_log = logging.getLogger(__name__)
+
+DEFAULT_MAX_FRAME_LEN = 32768
+#: NMEA 0183 allows 82 characters; NovAtel's proprietary sentences are longer, so allow some room.
+MAX_NMEA_LEN = 1024
+
+
+class FrameKind(Enum):
+    """Kind of a frame found in the stream."""
+
+    # Members are singletons compared by identity; hashing by identity (in C) instead of Enum's
+    # Python-level hash of the name keeps per-frame counting off the profile.
+    __hash__ = object.__hash__
+
+    NOVATEL_ASCII = "novatel_ascii"
+    NOVATEL_SHORT_ASCII = "novatel_short_ascii"
+    NOVATEL_ABBREV = "novatel_abbrev"
+    NOVATEL_BINARY = "novatel_binary"
+    NOVATEL_SHORT_BINARY = "novatel_short_binary"
+    RESPONSE = "response"
+    PROMPT = "prompt"
+    NMEA = "nmea"
+    RTCM3 = "rtcm3"
+
+
+#: Kinds whose message is a NovAtel :class:`Log`.
+LOG_KINDS = frozenset(
+    {
+        FrameKind.NOVATEL_ASCII,
+        FrameKind.NOVATEL_SHORT_ASCII,
+        FrameKind.NOVATEL_ABBREV,
+        FrameKind.NOVATEL_BINARY,
+        FrameKind.NOVATEL_SHORT_BINARY,
+    }
+)
+
+
+class SkipReason(Enum):
+    """Why bytes were not returned as part of a frame."""
+
+    __hash__ = object.__hash__
+
+    GARBAGE = "garbage"  # no frame starts there
+    CRC_FAILURE = "crc_failure"  # inside a frame candidate whose CRC/checksum failed
+    TRUNCATED = "truncated"  # a frame cut short (line break before its CRC, or end of stream)
+    OVERSIZE = "oversize"  # a frame candidate longer than the framer's bound
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One validated frame: its kind, exact bytes and decoded message.
+
+    ``message`` is a :class:`Log` for NovAtel logs, a :class:`Response` or :class:`Prompt`, a
+    pynmea2 sentence for NMEA, a pyrtcm ``RTCMMessage`` for RTCM3, or None when decoding was
+    switched off or failed; ``error`` then says why (the frame itself is valid: its CRC checked).
+    """
+
+    kind: FrameKind
+    raw: bytes
+    message: Any = None
+    error: str | None = None
+
+    @property
+    def log(self) -> Log | None:
+        """The NovAtel log, if this frame carries one."""
+        return self.message if isinstance(self.message, Log) else None
+
+
+_new_frame = fast_constructor(Frame)
+
+
+def _zero_counts(keys: type[Enum]) -> dict[Any, int]:
+    return dict.fromkeys(keys, 0)
+
+
+@dataclass(slots=True)
+class FramerStats:
+    """Running counts of a framer (mutable; take :meth:`copy` for a snapshot)."""
+
+    frames: dict[FrameKind, int] = field(default_factory=lambda: _zero_counts(FrameKind))
+    crc_failures: dict[FrameKind, int] = field(default_factory=lambda: _zero_counts(FrameKind))
+    decode_errors: dict[FrameKind, int] = field(default_factory=lambda: _zero_counts(FrameKind))
+    oversize: dict[FrameKind, int] = field(default_factory=lambda: _zero_counts(FrameKind))
+    bytes_skipped: dict[SkipReason, int] = field(default_factory=lambda: _zero_counts(SkipReason))
+    truncated: int = 0
+    line_end_bytes: int = 0
+    bytes_in: int = 0
+    bytes_in_frames: int = 0
+
+    @property
+    def total_frames(self) -> int:
+        return sum(self.frames.values())
+
+    @property
+    def total_skipped(self) -> int:
+        return sum(self.bytes_skipped.values())
+
+    def copy(self) -> FramerStats:
+        return FramerStats(
+            dict(self.frames),
+            dict(self.crc_failures),
+            dict(self.decode_errors),
+            dict(self.oversize),
+            dict(self.bytes_skipped),
+            self.truncated,
+            self.line_end_bytes,
+            self.bytes_in,
+            self.bytes_in_frames,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able view (zero counts left out of the per-kind maps)."""
+        return {
+            "frames": {k.value: v for k, v in self.frames.items() if v},
+            "crc_failures": {k.value: v for k, v in self.crc_failures.items() if v},
+            "decode_errors": {k.value: v for k, v in self.decode_errors.items() if v},
+            "oversize": {k.value: v for k, v in self.oversize.items() if v},
+            "bytes_skipped": {k.value: v for k, v in self.bytes_skipped.items() if v},
+            "truncated": self.truncated,
+            "line_end_bytes": self.line_end_bytes,
+            "bytes_in": self.bytes_in,
+            "bytes_in_frames": self.bytes_in_frames,
+        }
+
+
+# Parser results: (status, end, payload).
+_OK = 0  # payload: Frame; end: frame end
+_NEED = 1  # payload: kind once the sync is complete, else None
+_NOT_FRAME = 2  # skip one byte as garbage
+_CRC_FAIL = 3  # payload: kind; end: end of the candidate
+_TRUNC = 4  # payload: kind; end: where the frame was cut
+_OVERSIZE = 5  # payload: kind
+
+_Result = tuple[int, int, Any]
+
+_SYNC = re.compile(rb"[#%<\[$\xaa\xd3]")
+_HEX8 = re.compile(rb"[0-9A-Fa-f]{8}")
+_HEX2 = re.compile(rb"[0-9A-Fa-f]{2}")
+_LINE_BREAK = re.compile(rb"[\r\n]")
+_PROMPT = re.compile(rb"\[([A-Z][A-Z0-9_]{0,15})\]")
+_PROMPT_PARTIAL = re.compile(rb"\[(?:[A-Z][A-Z0-9_]{0,15})?")
+_ABBREV_HEADER = re.compile(
+    rb"<[A-Z][A-Z0-9]*(?:_\d+)? +[A-Z][A-Z0-9_]* +\d+ +[\d.]+ +[A-Z0-9_]+ +\d+ +[\d.]+"
+    rb" +[0-9A-Fa-f]+ +[0-9A-Fa-f]+ +\d+ *\r?$"
+)
+_NMEA_ADDRESS = re.compile(rb"\$[A-Z][A-Z0-9]{1,9},")
+
+
+def _rtcm_number_plausible(number: int) -> bool:
+    # Standard messages 1001-1300s and proprietary 4001-4095; anything else is not RTCM3 data.
+    return 1001 <= number <= 1399 or 4001 <= number <= 4095
+
+
+class Framer:
+    """Incremental multi-protocol framer for NovAtel receiver ports.
+
+    Args:
+        max_frame_len: longest frame accepted (bytes). A frame claiming more, or a text frame with
+            no end within this many bytes, is rejected; the buffer never holds much more.
+        decode_logs: decode NovAtel logs into :class:`Log` (else ``message`` is None).
+        decode_nmea: parse NMEA sentences with pynmea2.
+        decode_rtcm: parse RTCM3 frames with pyrtcm.
+    """
+
+    def __init__(
+        self,
+        *,
+        max_frame_len: int = DEFAULT_MAX_FRAME_LEN,
+        decode_logs: bool = True,
+        decode_nmea: bool = True,
+        decode_rtcm: bool = True,
+    ) -> None:
+        if max_frame_len < 64:
+            raise ValueError(f"max_frame_len must be >= 64, got {max_frame_len}")
+        self.max_frame_len = max_frame_len
+        self._decode_logs = decode_logs
+        self._decode_nmea = decode_nmea
+        self._decode_rtcm = decode_rtcm
+        self.stats = FramerStats()
+        self._buf = b""
+        self._base = 0  # stream offset of self._buf[0]
+        self._span_end = 0  # stream offset where the current rejected span ends
+        self._span_reason = SkipReason.GARBAGE
+        self._flush = False
+        parsers: dict[int, Callable[[bytes, int, int, bool], _Result]] = {
+            0x23: self._parse_ascii,  # '#'
+            0x25: self._parse_ascii,  # '%'
+            0x3C: self._parse_abbreviated,  # '<'
+            0x5B: self._parse_prompt,  # '['
+            0x24: self._parse_nmea,  # '$'
+            0xAA: self._parse_binary,
+            0xD3: self._parse_rtcm,
+        }
+        self._parsers = parsers
+
+    # --- public API ---------------------------------------------------------------------
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
+        """Add bytes; return the frames completed by them (in stream order)."""
+        if data:
+            chunk = bytes(data)
+            self.stats.bytes_in += len(chunk)
+            self._buf = self._buf + chunk if self._buf else chunk
+        return self._scan(final=False)
+
+    def flush(self) -> list[Frame]:
+        """Complete a pending abbreviated-ASCII log without waiting for the next byte.
+
+        An abbreviated log has no end marker; call this after a read timeout. Every other frame
+        still waits for its bytes.
+        """
+        self._flush = True
+        try:
+            return self._scan(final=False)
+        finally:
+            self._flush = False
+
+    def finish(self) -> list[Frame]:
+        """End of stream: complete what can be completed, count the rest as truncated or garbage."""
+        frames = self._scan(final=True)
+        self._buf = b""
+        return frames
+
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes held while waiting for the rest of a frame."""
+        return len(self._buf)
+
+    # --- scanning -----------------------------------------------------------------------
+
+    def _scan(self, final: bool) -> list[Frame]:
+        buf = self._buf
+        n = len(buf)
+        pos = 0
+        out: list[Frame] = []
+        stats = self.stats
+        search = _SYNC.search
+        parsers = self._parsers
+        while pos < n:
+            m = search(buf, pos)
+            if m is None:
+                self._skip(buf, pos, n)
+                pos = n
+                break
+            start = m.start()
+            if start > pos:
+                self._skip(buf, pos, start)
+            status, end, payload = parsers[buf[start]](buf, start, n, final)
+            if status == _OK:
+                if self._base + start < self._span_end:
+                    self._span_end = self._base + start
+                out.append(payload)
+                stats.frames[payload.kind] += 1
+                stats.bytes_in_frames += end - start
+                if payload.error is not None:
+                    stats.decode_errors[payload.kind] += 1
+                    _log.debug("NovAtel framer: %s frame decode error: %s", payload.kind.value, payload.error)
+                pos = end
+            elif status == _NEED:
+                if not final:
+                    pos = start
+                    break
+                if payload is not None:
+                    # The stream ended inside a frame: count it once, then look inside it.
+                    if not self._in_span(start, SkipReason.TRUNCATED):
+                        stats.truncated += 1
+                    self._reject(start, n, SkipReason.TRUNCATED)
+                self._skip(buf, start, start + 1)
+                pos = start + 1
+            elif status == _NOT_FRAME:
+                self._skip(buf, start, start + 1)
+                pos = start + 1
+            elif status == _CRC_FAIL:
+                stats.crc_failures[payload] += 1
+                _log.debug("NovAtel framer: %s CRC failure at stream offset %d", payload.value, self._base + start)
+                self._reject(start, end, SkipReason.CRC_FAILURE)
+                self._skip(buf, start, start + 1)
+                pos = start + 1
+            elif status == _TRUNC:
+                if not self._in_span(start, SkipReason.TRUNCATED):
+                    stats.truncated += 1
+                self._reject(start, end, SkipReason.TRUNCATED)
+                self._skip(buf, start, start + 1)
+                pos = start + 1
+            else:  # _OVERSIZE
+                stats.oversize[payload] += 1
+                self._reject(start, start + 1, SkipReason.OVERSIZE)
+                self._skip(buf, start, start + 1)
+                pos = start + 1
+        self._base += pos
+        self._buf = buf[pos:] if pos < n else b""
+        return out
+
+    def _in_span(self, start: int, reason: SkipReason) -> bool:
+        return self._base + start < self._span_end and self._span_reason is reason
+
+    def _reject(self, start: int, end: int, reason: SkipReason) -> None:
+        a = self._base + start
+        b = self._base + end
+        if a < self._span_end:
+            self._span_end = max(self._span_end, b)  # inside an earlier rejected span: keep its reason
+        else:
+            self._span_end = b
+            self._span_reason = reason
+
+    def _skip(self, buf: bytes, start: int, end: int) -> None:
+        """Count buf[start:end] as skipped: by the rejected span's reason, else garbage/line ends."""
+        a = self._base + start
+        b = self._base + end
+        skipped = self.stats.bytes_skipped
+        if a < self._span_end:
+            cut = min(b, self._span_end)
+            skipped[self._span_reason] += cut - a
+            if cut >= b:
+                return
+            start = cut - self._base
+        line_ends = buf.count(b"\n", start, end) + buf.count(b"\r", start, end)
+        self.stats.line_end_bytes += line_ends
+        skipped[SkipReason.GARBAGE] += end - start - line_ends
+
+    # --- parsers: (buf, start, n, final) -> (status, end, payload) ----------------------
+
+    def _parse_binary(self, buf: bytes, start: int, n: int, final: bool) -> _Result:
+        avail = n - start
+        if avail < 3:
+            if avail == 2 and buf[start + 1] != 0x44:
+                return _NOT_FRAME, 0, None
+            return _NEED, 0, None
+        b2 = buf[start + 2]
+        if buf[start + 1] != 0x44 or (b2 != 0x12 and b2 != 0x13):
+            return _NOT_FRAME, 0, None
+        if b2 == 0x12:
+            kind = FrameKind.NOVATEL_BINARY
+            if avail < 10:
+                return _NEED, 0, kind
+            hdr_len = buf[start + 3]
+            if hdr_len < 28:
+                return _NOT_FRAME, 0, None
+            total = hdr_len + (buf[start + 8] | buf[start + 9] << 8) + 4
+        else:
+            kind = FrameKind.NOVATEL_SHORT_BINARY
+            if avail < 4:
+                return _NEED, 0, kind
+            total = 16 + buf[start + 3]
+        if total > self.max_frame_len:
+            return _OVERSIZE, 0, kind
+        end = start + total
+        if end > n:
+            return _NEED, 0, kind
+        raw = buf[start:end]
+        if zlib.crc32(raw, 0xFFFFFFFF) != 0xFFFFFFFF:
+            return _CRC_FAIL, end, kind
+        if not self._decode_logs:
+            return _OK, end, _new_frame(kind, raw, None, None)
+        log, error = decode_verified(raw, kind is FrameKind.NOVATEL_SHORT_BINARY)
+        return _OK, end, _new_frame(kind, raw, log, error)
+
+    def _parse_ascii(self, buf: bytes, start: int, n: int, final: bool) -> _Result:
+        if n - start < 2:
+            return _NEED, 0, None
+        if not 0x41 <= buf[start + 1] <= 0x5A:  # a log name starts with an upper-case letter
+            return _NOT_FRAME, 0, None
+        kind = FrameKind.NOVATEL_ASCII if buf[start] == 0x23 else FrameKind.NOVATEL_SHORT_ASCII
+        limit = min(n, start + self.max_frame_len)
+        star = buf.find(b"*", start + 2, limit)
+        if star < 0:
+            brk = _LINE_BREAK.search(buf, start + 2, limit)
+            if brk is not None:
+                return self._text_cut(buf, start, brk.start(), kind)
+            if limit - start >= self.max_frame_len:
+                return _OVERSIZE, 0, kind
+            return _NEED, 0, kind
+        brk = _LINE_BREAK.search(buf, start + 2, star)
+        if brk is not None:
+            return self._text_cut(buf, start, brk.start(), kind)
+        end = star + 9
+        if end > n:
+            if n > star + 1 and not _is_hex_prefix(buf, star + 1, n):
+                return self._text_cut(buf, start, star + 1, kind)
+            return _NEED, 0, kind
+        if _HEX8.fullmatch(buf, star + 1, end) is None:
+            return self._text_cut(buf, start, star + 1, kind)
+        raw = buf[start:end]
+        if novatel_crc32(memoryview(raw)[1 : star - start]) != int(raw[-8:], 16):
+            # A header has commas (its ';' may be the very byte that was corrupted): without one this
+            # was never a log, with one it is a log that failed its CRC.
+            if buf.find(b",", start, star) < 0:
+                return _NOT_FRAME, 0, None
+            # A new log starting before this one's CRC means this one was cut short.
+            inner = buf.find(buf[start : start + 1], start + 1, star)
+            if inner >= 0:
+                return _TRUNC, inner, kind
+            return _CRC_FAIL, end, kind
+        if not self._decode_logs:
+            return _OK, end, _new_frame(kind, raw, None, None)
+        try:
+            log, error = decode_ascii_verified(raw)
+        except DecodeError as exc:
+            return _OK, end, Frame(kind, raw, None, str(exc))
+        return _OK, end, _new_frame(kind, raw, log, error)
+
+    @staticmethod
+    def _text_cut(buf: bytes, start: int, cut: int, kind: FrameKind) -> _Result:
+        # A text frame that ends (line break / bad CRC field) before a valid CRC: truncated if it
+        # got as far as its first header field (',' seen), otherwise it was never a frame.
+        if buf.find(b",", start, cut) < 0:
+            return _NOT_FRAME, 0, None
+        return _TRUNC, cut, kind
+
+    def _parse_abbreviated(self, buf: bytes, start: int, n: int, final: bool) -> _Result:
+        limit = min(n, start + self.max_frame_len)
+        nl = buf.find(b"\n", start + 1, limit)
+        if nl < 0:
+            if limit - start >= self.max_frame_len:
+                return _NOT_FRAME, 0, None
+            if not final:
+                return _NEED, 0, None
+            line_end = n
+        else:
+            line_end = nl
+        line = buf[start:line_end].rstrip(b"\r")
+        if line == b"<OK":
+            return _OK, start + len(line), Frame(FrameKind.RESPONSE, line, Response(True, "OK"))
+        if line.startswith(b"<ERROR:"):
+            return _OK, start + len(line), Frame(FrameKind.RESPONSE, line, Response(False, line[7:].decode("latin-1")))
+        if _ABBREV_HEADER.match(line) is None:
+            return _NOT_FRAME, 0, None
+        kind = FrameKind.NOVATEL_ABBREV
+        last_end = start + len(line)
+        p = line_end + 1
+        complete_at_end = final or self._flush
+        while True:
+            if p >= n:
+                if complete_at_end:
+                    break
+                return _NEED, 0, kind
+            if buf[p] != 0x3C:  # not '<': the log is complete
+                break
+            if p + 1 >= n:
+                if complete_at_end:
+                    break
+                return _NEED, 0, kind
+            if buf[p + 1] != 0x20 and buf[p + 1] != 0x09:  # '<' not followed by blank: next frame
+                break
+            q = buf.find(b"\n", p, limit)
+            if q < 0:
+                if limit - start >= self.max_frame_len:
+                    return _OVERSIZE, 0, kind
+                if not final:
+                    return _NEED, 0, kind
+                q = n
+            last_end = q - 1 if q > p and buf[q - 1] == 0x0D else q
+            p = q + 1
+        raw = buf[start:last_end]
+        if not self._decode_logs:
+            return _OK, last_end, _new_frame(kind, raw, None, None)
+        try:
+            log, error = decode_abbreviated_lines(raw)
+        except DecodeError as exc:
+            return _OK, last_end, Frame(kind, raw, None, str(exc))
+        return _OK, last_end, _new_frame(kind, raw, log, error)
+
+    def _parse_prompt(self, buf: bytes, start: int, n: int, final: bool) -> _Result:
+        m = _PROMPT.match(buf, start)
+        if m is not None:
+            end = m.end()
+            return _OK, end, Frame(FrameKind.PROMPT, buf[start:end], Prompt(m.group(1).decode("ascii")))
+        if not final and n - start < 18 and _PROMPT_PARTIAL.fullmatch(buf, start, n) is not None:
+            return _NEED, 0, None
+        return _NOT_FRAME, 0, None
+
+    def _parse_nmea(self, buf: bytes, start: int, n: int, final: bool) -> _Result:
+        if n - start < 2:
+            return _NEED, 0, None
+        if not 0x41 <= buf[start + 1] <= 0x5A:
+            return _NOT_FRAME, 0, None
+        kind = FrameKind.NMEA
+        limit = min(n, start + MAX_NMEA_LEN, start + self.max_frame_len)
+        star = buf.find(b"*", start + 2, limit)
+        if star < 0:
+            brk = _LINE_BREAK.search(buf, start + 2, limit)
+            if brk is not None:
+                return self._nmea_cut(buf, start, brk.start())
+            if limit - start >= min(MAX_NMEA_LEN, self.max_frame_len):
+                return _NOT_FRAME, 0, None
+            return _NEED, 0, kind
+        brk = _LINE_BREAK.search(buf, start + 2, star)
+        if brk is not None:
+            return self._nmea_cut(buf, start, brk.start())
+        end = star + 3
+        if end > n:
+            if n > star + 1 and not _is_hex_prefix(buf, star + 1, n):
+                return self._nmea_cut(buf, start, star + 1)
+            return _NEED, 0, kind
+        if _HEX2.fullmatch(buf, star + 1, end) is None:
+            return self._nmea_cut(buf, start, star + 1)
+        if _NMEA_ADDRESS.match(buf, start, star) is None:
+            return _NOT_FRAME, 0, None
+        if xor_checksum(buf[start + 1 : star]) != int(buf[star + 1 : end], 16):
+            inner = buf.find(b"$", start + 1, star)
+            if inner >= 0:
+                return _TRUNC, inner, kind
+            return _CRC_FAIL, end, kind
+        raw = buf[start:end]
+        if not self._decode_nmea:
+            return _OK, end, _new_frame(kind, raw, None, None)
+        message, error = _parse_nmea_sentence(raw)
+        return _OK, end, _new_frame(kind, raw, message, error)
+
+    @staticmethod
+    def _nmea_cut(buf: bytes, start: int, cut: int) -> _Result:
+        # Looked like a sentence (valid address field) but ended before a checksum: truncated.
+        if _NMEA_ADDRESS.match(buf, start, cut) is None:
+            return _NOT_FRAME, 0, None
+        return _TRUNC, cut, FrameKind.NMEA
+
+    def _parse_rtcm(self, buf: bytes, start: int, n: int, final: bool) -> _Result:
+        avail = n - start
+        if avail >= 2 and buf[start + 1] & 0xFC:
+            return _NOT_FRAME, 0, None
+        if avail < 5:
+            return _NEED, 0, None
+        length = (buf[start + 1] & 0x03) << 8 | buf[start + 2]
+        if length < 2 or not _rtcm_number_plausible(buf[start + 3] << 4 | buf[start + 4] >> 4):
+            return _NOT_FRAME, 0, None
+        kind = FrameKind.RTCM3
+        end = start + length + 6
+        if end - start > self.max_frame_len:
+            return _OVERSIZE, 0, kind
+        if end > n:
+            return _NEED, 0, kind
+        raw = buf[start:end]
+        if crc24q(raw) != 0:
+            return _CRC_FAIL, end, kind
+        if not self._decode_rtcm:
+            return _OK, end, _new_frame(kind, raw, None, None)
+        message, error = _parse_rtcm_frame(raw)
+        return _OK, end, _new_frame(kind, raw, message, error)
+
+
+def _is_hex_prefix(buf: bytes, start: int, end: int) -> bool:
+    return all(c in b"0123456789ABCDEFabcdef" for c in buf[start:end])
+
+
+def _parse_nmea_sentence(raw: bytes) -> tuple[Any, str | None]:
+    try:
+        return pynmea2.parse(raw.decode("ascii")), None
+    except (pynmea2.ParseError, UnicodeDecodeError, ValueError, AttributeError, TypeError) as exc:
+        return None, f"pynmea2 cannot parse NMEA sentence: {exc}"
+
+
+def _parse_rtcm_frame(raw: bytes) -> tuple[Any, str | None]:
+    try:
+        return RTCMReader.parse(raw, validate=0), None
+    except Exception as exc:  # pyrtcm raises its own errors and also bare ones on odd payloads
+        return None, f"pyrtcm cannot parse RTCM3 frame: {type(exc).__name__}: {exc}"
+
+
+class SupportsRead(Protocol):
+    """Anything with ``read(n) -> bytes`` (file, BytesIO, serial port, socket file)."""
+
+    def read(self, n: int, /) -> bytes: ...
+
+
+class FrameReader:
+    """Frames from a byte source with ``read(n)``; stops at the first empty read (end of stream).
+
+    For a serial port whose ``read`` returns ``b""`` on timeout, feed a :class:`Framer` directly
+    instead (a receiver session does).
+    """
+
+    def __init__(self, stream: SupportsRead, *, framer: Framer | None = None, chunk_size: int = 65536) -> None:
+        self._stream = stream
+        self.framer = framer if framer is not None else Framer()
+        self._chunk_size = chunk_size
+
+    @property
+    def stats(self) -> FramerStats:
+        return self.framer.stats
+
+    def __iter__(self) -> Iterator[Frame]:
+        read = self._stream.read
+        feed = self.framer.feed
+        while True:
+            data = read(self._chunk_size)
+            if not data:
+                break
+            yield from feed(data)
+        yield from self.framer.finish()
+
+
+def iter_frames(stream: SupportsRead, **framer_options: Any) -> Iterator[Frame]:
+    """Frames of a whole stream (see :class:`Framer` for the options)."""
+    return iter(FrameReader(stream, framer=Framer(**framer_options)))

@@ -1,0 +1,599 @@
+"""Declarative field layouts of the typed NovAtel logs, and the generic body codecs built from them.
+
+Each typed body is described once, in wire order, by a tuple of :class:`FieldSpec` (binary type
+code, ASCII form, enum). From that table this module builds, per message, a precompiled
+``struct.Struct`` and per-field converter lists for binary and ASCII in both directions, so
+decoding is one ``unpack_from`` plus a few dict look-ups, and no message has hand-written
+parsing code except PSRDOP's variable-length PRN list.
+
+ASCII number formats follow what OEM7 receivers print (e.g. latitude with 11 decimals, heights
+with 4, ages with 3); a field printed as ``repr`` round-trips any double exactly.
+"""
+
+from __future__ import annotations
+
+import csv
+import operator
+import re
+import struct
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields
+from enum import Enum
+from typing import Any
+
+from drivers.novatel.enums import ClockModelStatus, Datum, PositionType, SolutionStatus, UTCStatus, _OpenIntEnum
+from drivers.novatel.messages import (
+    BestPos,
+    BestVel,
+    BestXyz,
+    Heading,
+    Heading2,
+    Mark2Pos,
+    Mark2Time,
+    MarkPos,
+    MarkTime,
+    Message,
+    PsrDop,
+    Time,
+)
+from vsccore.errors import DecodeError, EncodeError
+
+
+class Kind(Enum):
+    """How a field is written in ASCII."""
+
+    FLOAT = "float"
+    INT = "int"
+    HEX = "hex"
+    ENUM = "enum"
+    STR = "str"
+
+
+@dataclass(frozen=True, slots=True)
+class FieldSpec:
+    """One body field: name (the dataclass field), struct code, ASCII kind and format."""
+
+    name: str
+    code: str
+    kind: Kind
+    fmt: str = ""  # float: format spec ("" = repr); hex: width spec such as "02x"
+    enum: type[_OpenIntEnum] | None = None
+
+
+def _f64(name: str, fmt: str = "") -> FieldSpec:
+    return FieldSpec(name, "d", Kind.FLOAT, fmt)
+
+
+def _f32(name: str, fmt: str = "") -> FieldSpec:
+    return FieldSpec(name, "f", Kind.FLOAT, fmt)
+
+
+def _u8(name: str) -> FieldSpec:
+    return FieldSpec(name, "B", Kind.INT)
+
+
+def _u32(name: str) -> FieldSpec:
+    return FieldSpec(name, "I", Kind.INT)
+
+
+def _i32(name: str) -> FieldSpec:
+    return FieldSpec(name, "i", Kind.INT)
+
+
+def _hex8(name: str) -> FieldSpec:
+    return FieldSpec(name, "B", Kind.HEX, "02x")
+
+
+def _enum(name: str, enum: type[_OpenIntEnum]) -> FieldSpec:
+    return FieldSpec(name, "I", Kind.ENUM, enum=enum)
+
+
+def _str4(name: str) -> FieldSpec:
+    return FieldSpec(name, "4s", Kind.STR)
+
+
+_SIGNAL_TAIL = (
+    _hex8("reserved"),
+    _hex8("ext_sol_stat"),
+    _hex8("galileo_beidou_sig_mask"),
+    _hex8("gps_glonass_sig_mask"),
+)
+
+POSITION_FIELDS: tuple[FieldSpec, ...] = (
+    _enum("sol_status", SolutionStatus),
+    _enum("pos_type", PositionType),
+    _f64("lat_deg", ".11f"),
+    _f64("lon_deg", ".11f"),
+    _f64("hgt_m", ".4f"),
+    _f32("undulation_m", ".4f"),
+    _enum("datum", Datum),
+    _f32("lat_sigma_m", ".4f"),
+    _f32("lon_sigma_m", ".4f"),
+    _f32("hgt_sigma_m", ".4f"),
+    _str4("stn_id"),
+    _f32("diff_age_s", ".3f"),
+    _f32("sol_age_s", ".3f"),
+    _u8("num_svs"),
+    _u8("num_soln_svs"),
+    _u8("num_soln_l1_svs"),
+    _u8("num_soln_multi_svs"),
+    *_SIGNAL_TAIL,
+)
+
+BESTVEL_FIELDS: tuple[FieldSpec, ...] = (
+    _enum("sol_status", SolutionStatus),
+    _enum("vel_type", PositionType),
+    _f32("latency_s", ".3f"),
+    _f32("diff_age_s", ".3f"),
+    _f64("hor_spd_mps", ".4f"),
+    _f64("trk_gnd_deg", ".6f"),
+    _f64("vert_spd_mps", ".4f"),
+    _f32("reserved"),
+)
+
+BESTXYZ_FIELDS: tuple[FieldSpec, ...] = (
+    _enum("p_sol_status", SolutionStatus),
+    _enum("pos_type", PositionType),
+    _f64("p_x_m", ".4f"),
+    _f64("p_y_m", ".4f"),
+    _f64("p_z_m", ".4f"),
+    _f32("p_x_sigma_m", ".4f"),
+    _f32("p_y_sigma_m", ".4f"),
+    _f32("p_z_sigma_m", ".4f"),
+    _enum("v_sol_status", SolutionStatus),
+    _enum("vel_type", PositionType),
+    _f64("v_x_mps", ".4f"),
+    _f64("v_y_mps", ".4f"),
+    _f64("v_z_mps", ".4f"),
+    _f32("v_x_sigma_mps", ".4f"),
+    _f32("v_y_sigma_mps", ".4f"),
+    _f32("v_z_sigma_mps", ".4f"),
+    _str4("stn_id"),
+    _f32("v_latency_s", ".3f"),
+    _f32("diff_age_s", ".3f"),
+    _f32("sol_age_s", ".3f"),
+    _u8("num_svs"),
+    _u8("num_soln_svs"),
+    _u8("num_soln_l1_svs"),
+    _u8("num_soln_multi_svs"),
+    *_SIGNAL_TAIL,
+)
+
+EVENT_TIME_FIELDS: tuple[FieldSpec, ...] = (
+    _i32("week"),
+    _f64("seconds", ".9f"),
+    _f64("offset_s", ".9e"),
+    _f64("offset_std_s", ".9e"),
+    _f64("utc_offset_s", ".11f"),
+    _enum("clock_status", ClockModelStatus),
+)
+
+TIME_FIELDS: tuple[FieldSpec, ...] = (
+    _enum("clock_status", ClockModelStatus),
+    _f64("offset_s", ".9e"),
+    _f64("offset_std_s", ".9e"),
+    _f64("utc_offset_s", ".11f"),
+    _u32("utc_year"),
+    _u8("utc_month"),
+    _u8("utc_day"),
+    _u8("utc_hour"),
+    _u8("utc_min"),
+    _u32("utc_ms"),
+    _enum("utc_status", UTCStatus),
+)
+
+_HEADING_HEAD = (
+    _enum("sol_status", SolutionStatus),
+    _enum("pos_type", PositionType),
+    _f32("length_m", ".9f"),
+    _f32("heading_deg", ".9f"),
+    _f32("pitch_deg", ".9f"),
+    _f32("reserved"),
+    _f32("heading_sigma_deg", ".9f"),
+    _f32("pitch_sigma_deg", ".9f"),
+)
+_HEADING_TAIL = (
+    _u8("num_svs"),
+    _u8("num_soln_svs"),
+    _u8("num_obs"),
+    _u8("num_multi"),
+    _hex8("sol_source"),
+    _hex8("ext_sol_stat"),
+    _hex8("galileo_beidou_sig_mask"),
+    _hex8("gps_glonass_sig_mask"),
+)
+
+HEADING_FIELDS: tuple[FieldSpec, ...] = (*_HEADING_HEAD, _str4("stn_id"), *_HEADING_TAIL)
+HEADING2_FIELDS: tuple[FieldSpec, ...] = (
+    *_HEADING_HEAD,
+    _str4("rover_stn_id"),
+    _str4("master_stn_id"),
+    *_HEADING_TAIL,
+)
+
+#: PSRDOP fixed part; a signed count and that many ulong PRNs follow.
+PSRDOP_FIELDS: tuple[FieldSpec, ...] = (
+    _f32("gdop", ".4f"),
+    _f32("pdop", ".4f"),
+    _f32("hdop", ".4f"),
+    _f32("htdop", ".4f"),
+    _f32("tdop", ".4f"),
+    _f32("cutoff_deg", ".1f"),
+)
+
+# --- ASCII token helpers ---------------------------------------------------------------------
+
+
+def _parse_hex(token: str) -> int:
+    return int(token, 16)
+
+
+def _parse_str(token: str) -> str:
+    if len(token) >= 2 and token[0] == '"' and token[-1] == '"':
+        return token[1:-1]
+    return token
+
+
+def _enum_parser(enum: type[_OpenIntEnum]) -> Callable[[str], Any]:
+    members = dict(enum._member_map_)
+    get = members.get
+    from_token = enum.from_token
+
+    def parse(token: str) -> Any:
+        member = get(token)
+        return member if member is not None else from_token(token)
+
+    return parse
+
+
+def _enum_by_value(enum: type[_OpenIntEnum]) -> Callable[[int], Any]:
+    members = dict(enum._value2member_map_)
+    get = members.get
+
+    def convert(value: int) -> Any:
+        member = get(value)
+        return member if member is not None else enum(value)
+
+    return convert
+
+
+def _float_formatter(fmt: str) -> Callable[[Any], str]:
+    if not fmt:
+        return lambda v: repr(float(v))
+    spec = "{:" + fmt + "}"
+    return spec.format
+
+
+def _hex_formatter(fmt: str) -> Callable[[Any], str]:
+    spec = "{:" + fmt + "}"
+    return spec.format
+
+
+def _enum_formatter(value: Any) -> str:
+    name = value.name
+    return str(int(value)) if name.startswith("UNKNOWN_") else str(name)
+
+
+def _str_formatter(value: Any) -> str:
+    return f'"{value}"'
+
+
+def split_ascii_fields(text: str) -> list[str]:
+    """Split a comma-separated ASCII body; a comma inside a quoted string does not split."""
+    if '"' in text and any("," in quoted for quoted in text.split('"')[1::2]):
+        return next(csv.reader([text]))
+    return text.split(",")
+
+
+_ABBREV_TOKEN = re.compile(r'"[^"]*"|\S+')
+
+
+def split_abbreviated_fields(text: str) -> list[str]:
+    """Split abbreviated-ASCII body text on whitespace; a quoted string is one token."""
+    return _ABBREV_TOKEN.findall(text)
+
+
+
+# --- Generated fast decoders -----------------------------------------------------------------
+# Decoding is the hot path (20-50 Hz per receiver, and whole captures offline). For each layout
+# the table is turned once into straight-line Python: one unpack (binary) or one tuple unpack
+# (ASCII), then each value converted in place and stored through the slot's descriptor, with no
+# per-field loop, function dispatch or dataclass __init__. The generic methods of BodyCodec stay
+# the reference (and name the failing field on errors); tests check both agree.
+
+_STR_CACHE: dict[bytes, str] = {}
+
+
+def _decode_str4(raw: bytes) -> str:
+    text = raw.rstrip(b"\0").decode("latin-1")
+    if len(_STR_CACHE) < 4096:  # station IDs repeat; bound the cache against garbage
+        _STR_CACHE[raw] = text
+    return text
+
+
+def _compile_decoders(
+    cls: type[Message], specs: Sequence[FieldSpec], unpack: Callable[..., tuple[Any, ...]]
+) -> tuple[Callable[[bytes], Any], Callable[[Sequence[str]], Any]]:
+    ns: dict[str, Any] = {
+        "_new": object.__new__,
+        "_cls": cls,
+        "_unpack": unpack,
+        "_str_get": _STR_CACHE.get,
+        "_str_dec": _decode_str4,
+        "_float": float,
+        "_int": int,
+    }
+    n = len(specs)
+    binary = [f"def decode_binary_{cls.__name__}(body):"]
+    binary.append("    " + ", ".join(f"a{i}" for i in range(n)) + ", = _unpack(body)")
+    binary.append("    obj = _new(_cls)")
+    ascii_ = [f"def decode_ascii_{cls.__name__}(tokens):"]
+    ascii_.append("    " + ", ".join(f"t{i}" for i in range(n)) + f", = tokens[:{n}]")
+    ascii_.append("    obj = _new(_cls)")
+    for i, spec in enumerate(specs):
+        ns[f"_set{i}"] = getattr(cls, spec.name).__set__
+        if spec.kind is Kind.ENUM:
+            assert spec.enum is not None
+            ns[f"_by_value{i}"] = dict(spec.enum._value2member_map_).get
+            ns[f"_by_name{i}"] = dict(spec.enum._member_map_).get
+            ns[f"_enum{i}"] = spec.enum
+            binary.append(f"    m = _by_value{i}(a{i})")
+            binary.append(f"    _set{i}(obj, m if m is not None else _enum{i}(a{i}))")
+            ascii_.append(f"    m = _by_name{i}(t{i})")
+            ascii_.append(f"    _set{i}(obj, m if m is not None else _enum{i}.from_token(t{i}))")
+        elif spec.kind is Kind.STR:
+            binary.append(f"    m = _str_get(a{i})")
+            binary.append(f"    _set{i}(obj, m if m is not None else _str_dec(a{i}))")
+            ascii_.append(
+                f"    _set{i}(obj, t{i}[1:-1] if len(t{i}) >= 2 and t{i}[0] == '\"' and t{i}[-1] == '\"' else t{i})"
+            )
+        else:
+            binary.append(f"    _set{i}(obj, a{i})")
+            if spec.kind is Kind.FLOAT:
+                ascii_.append(f"    _set{i}(obj, _float(t{i}))")
+            elif spec.kind is Kind.INT:
+                ascii_.append(f"    _set{i}(obj, _int(t{i}))")
+            else:
+                ascii_.append(f"    _set{i}(obj, _int(t{i}, 16))")
+    binary.append("    return obj")
+    ascii_.append("    return obj")
+    exec("\n".join(binary) + "\n\n" + "\n".join(ascii_) + "\n", ns)  # source built from the table only
+    return ns[f"decode_binary_{cls.__name__}"], ns[f"decode_ascii_{cls.__name__}"]
+
+
+# --- Per-message codecs ----------------------------------------------------------------------
+
+
+class BodyCodec:
+    """Binary and ASCII codec of one typed body, built from its field table."""
+
+    __slots__ = (
+        "_ascii_formatters",
+        "_ascii_parsers",
+        "_enum_slots",
+        "_fast_ascii",
+        "_fast_binary",
+        "_getter",
+        "_str_slots",
+        "cls",
+        "names",
+        "size",
+        "specs",
+        "struct",
+    )
+
+    def __init__(self, cls: type[Message], specs: Sequence[FieldSpec], tail: tuple[str, ...] = ()) -> None:
+        self.cls = cls
+        self.specs = tuple(specs)
+        self.names = tuple(s.name for s in self.specs)
+        if (*self.names, *tail) != tuple(f.name for f in fields(cls)):
+            raise TypeError(f"layout of {cls.__name__} does not follow its dataclass fields")
+        self.struct = struct.Struct("<" + "".join(s.code for s in self.specs))
+        self.size = self.struct.size
+        self._getter = operator.attrgetter(*self.names)
+        self._enum_slots = tuple(
+            (i, _enum_by_value(s.enum)) for i, s in enumerate(self.specs) if s.kind is Kind.ENUM and s.enum
+        )
+        self._str_slots = tuple(i for i, s in enumerate(self.specs) if s.kind is Kind.STR)
+        parsers: list[Callable[[str], Any]] = []
+        formatters: list[Callable[[Any], str]] = []
+        for s in self.specs:
+            if s.kind is Kind.FLOAT:
+                parsers.append(float)
+                formatters.append(_float_formatter(s.fmt))
+            elif s.kind is Kind.INT:
+                parsers.append(int)
+                formatters.append(str)
+            elif s.kind is Kind.HEX:
+                parsers.append(_parse_hex)
+                formatters.append(_hex_formatter(s.fmt))
+            elif s.kind is Kind.ENUM:
+                assert s.enum is not None
+                parsers.append(_enum_parser(s.enum))
+                formatters.append(_enum_formatter)
+            else:
+                parsers.append(_parse_str)
+                formatters.append(_str_formatter)
+        self._ascii_parsers = tuple(parsers)
+        self._ascii_formatters = tuple(formatters)
+        if tail:  # variable-length tail (PSRDOP): the subclass decodes with the generic methods
+            self._fast_binary = self._fast_ascii = None
+        else:
+            self._fast_binary, self._fast_ascii = _compile_decoders(cls, self.specs, self.struct.unpack_from)
+
+    # binary
+
+    def decode_binary_values(self, body: bytes, offset: int = 0) -> list[Any]:
+        """Field values (enums and strings converted) from a binary body."""
+        values = list(self.struct.unpack_from(body, offset))
+        for i, convert in self._enum_slots:
+            values[i] = convert(values[i])
+        for i in self._str_slots:
+            values[i] = values[i].rstrip(b"\0").decode("latin-1")
+        return values
+
+    def decode_binary(self, body: bytes) -> Message:
+        """Typed body from binary bytes (trailing bytes beyond the layout are ignored).
+
+        Raises:
+            DecodeError: the body is shorter than the layout.
+        """
+        if len(body) < self.size:
+            raise DecodeError(
+                f"NovAtel {self.cls.MESSAGE_NAME} binary body has {len(body)} bytes, layout needs {self.size}"
+            )
+        if self._fast_binary is not None:
+            return self._fast_binary(body)
+        return self.cls(*self.decode_binary_values(body))
+
+    def decode_binary_reference(self, body: bytes) -> Message:
+        """Same as :meth:`decode_binary` through the generic (table-walking) path."""
+        return self.cls(*self.decode_binary_values(body))
+
+    def encode_binary_values(self, msg: Any) -> bytes:
+        values = list(self._getter(msg))
+        try:
+            for i in self._str_slots:
+                raw = values[i].encode("latin-1")
+                if len(raw) > 4:
+                    raise ValueError(f"{self.names[i]}={values[i]!r} is longer than 4 characters")
+                values[i] = raw
+            return self.struct.pack(*values)
+        except (struct.error, ValueError, OverflowError, UnicodeEncodeError, AttributeError, TypeError) as exc:
+            raise EncodeError(f"cannot encode NovAtel {self.cls.MESSAGE_NAME} body in binary: {exc}") from exc
+
+    def encode_binary(self, msg: Any) -> bytes:
+        """Binary body bytes of a typed body.
+
+        Raises:
+            EncodeError: a field does not fit its wire type.
+        """
+        return self.encode_binary_values(msg)
+
+    # ASCII
+
+    def decode_tokens(self, tokens: Sequence[str], start: int = 0) -> list[Any]:
+        """Field values from ASCII tokens (extra trailing tokens are ignored).
+
+        Raises:
+            DecodeError: too few tokens, or a token that does not parse (names the field).
+        """
+        n = len(self.specs)
+        if len(tokens) - start < n:
+            raise DecodeError(
+                f"NovAtel {self.cls.MESSAGE_NAME} ASCII body has {len(tokens) - start} fields, layout needs {n}"
+            )
+        try:
+            return [parse(tok) for parse, tok in zip(self._ascii_parsers, tokens[start : start + n], strict=True)]
+        except (ValueError, KeyError):
+            for i, (parse, tok) in enumerate(zip(self._ascii_parsers, tokens[start : start + n], strict=True)):
+                try:
+                    parse(tok)
+                except (ValueError, KeyError) as exc:
+                    raise DecodeError(
+                        f"NovAtel {self.cls.MESSAGE_NAME} field {i + 1} ({self.names[i]}): cannot parse {tok!r}"
+                    ) from exc
+            raise  # pragma: no cover - the loop above re-raises
+
+    def decode_ascii(self, tokens: Sequence[str]) -> Message:
+        """Typed body from ASCII tokens (extra trailing tokens are ignored).
+
+        Raises:
+            DecodeError: too few tokens, or a token that does not parse (names the field).
+        """
+        if self._fast_ascii is not None and len(tokens) >= len(self.specs):
+            try:
+                return self._fast_ascii(tokens)
+            except (ValueError, KeyError, IndexError):
+                pass  # the generic path below says which field failed
+        return self.cls(*self.decode_tokens(tokens))
+
+    def decode_ascii_reference(self, tokens: Sequence[str]) -> Message:
+        """Same as :meth:`decode_ascii` through the generic (table-walking) path."""
+        return self.cls(*self.decode_tokens(tokens))
+
+    def format_tokens(self, msg: Any) -> list[str]:
+        """ASCII tokens of a typed body.
+
+        Raises:
+            EncodeError: a field value cannot be written.
+        """
+        try:
+            return [fmt(v) for fmt, v in zip(self._ascii_formatters, self._getter(msg), strict=True)]
+        except (ValueError, TypeError, AttributeError) as exc:
+            raise EncodeError(f"cannot encode NovAtel {self.cls.MESSAGE_NAME} body in ASCII: {exc}") from exc
+
+
+def _psrdop(values: Sequence[Any], prns: tuple[int, ...]) -> PsrDop:
+    gdop, pdop, hdop, htdop, tdop, cutoff_deg = values
+    return PsrDop(gdop, pdop, hdop, htdop, tdop, cutoff_deg, prns)
+
+
+class PsrDopCodec(BodyCodec):
+    """PSRDOP: the fixed DOP fields, then a signed count and that many ulong PRNs."""
+
+    __slots__ = ()
+
+    _COUNT = struct.Struct("<i")
+
+    def decode_binary(self, body: bytes) -> Message:
+        fixed = self.size
+        if len(body) < fixed + 4:
+            raise DecodeError(f"NovAtel PSRDOP binary body has {len(body)} bytes, needs at least {fixed + 4}")
+        values = self.decode_binary_values(body)
+        (count,) = self._COUNT.unpack_from(body, fixed)
+        if count < 0 or len(body) < fixed + 4 + 4 * count:
+            raise DecodeError(f"NovAtel PSRDOP binary body of {len(body)} bytes cannot hold {count} PRNs")
+        prns = struct.unpack_from(f"<{count}I", body, fixed + 4)
+        return _psrdop(values, prns)
+
+    def encode_binary(self, msg: Any) -> bytes:
+        head = self.encode_binary_values(msg)
+        try:
+            prns = tuple(msg.prns)
+            return head + self._COUNT.pack(len(prns)) + struct.pack(f"<{len(prns)}I", *prns)
+        except (struct.error, TypeError) as exc:
+            raise EncodeError(f"cannot encode NovAtel PSRDOP PRN list: {exc}") from exc
+
+    def decode_ascii(self, tokens: Sequence[str]) -> Message:
+        values = self.decode_tokens(tokens)
+        n = len(self.specs)
+        try:
+            count = int(tokens[n])
+            prns = tuple(int(t) for t in tokens[n + 1 : n + 1 + count])
+        except (IndexError, ValueError) as exc:
+            raise DecodeError(f"NovAtel PSRDOP ASCII PRN list does not parse: {exc}") from exc
+        if count < 0 or len(prns) != count:
+            raise DecodeError(f"NovAtel PSRDOP ASCII says {count} PRNs but carries {len(prns)}")
+        return _psrdop(values, prns)
+
+    def format_tokens(self, msg: Any) -> list[str]:
+        tokens = super().format_tokens(msg)
+        prns = tuple(msg.prns)
+        return [*tokens, str(len(prns)), *(str(int(p)) for p in prns)]
+
+
+def _build_codecs() -> dict[int, BodyCodec]:
+    table: list[tuple[type[Message], tuple[FieldSpec, ...]]] = [
+        (BestPos, POSITION_FIELDS),
+        (MarkPos, POSITION_FIELDS),
+        (Mark2Pos, POSITION_FIELDS),
+        (BestVel, BESTVEL_FIELDS),
+        (BestXyz, BESTXYZ_FIELDS),
+        (MarkTime, EVENT_TIME_FIELDS),
+        (Mark2Time, EVENT_TIME_FIELDS),
+        (Time, TIME_FIELDS),
+        (Heading, HEADING_FIELDS),
+        (Heading2, HEADING2_FIELDS),
+    ]
+    codecs: dict[int, BodyCodec] = {cls.MESSAGE_ID: BodyCodec(cls, specs) for cls, specs in table}
+    codecs[PsrDop.MESSAGE_ID] = PsrDopCodec(PsrDop, PSRDOP_FIELDS, tail=("prns",))
+    return codecs
+
+
+#: Body codec by message ID (dict dispatch for the decoders and encoders).
+CODECS_BY_ID: dict[int, BodyCodec] = _build_codecs()
+#: Body codec by log name.
+CODECS_BY_NAME: dict[str, BodyCodec] = {c.cls.MESSAGE_NAME: c for c in CODECS_BY_ID.values()}
+#: Body codec by body class.
+CODECS_BY_CLASS: dict[type, BodyCodec] = {c.cls: c for c in CODECS_BY_ID.values()}

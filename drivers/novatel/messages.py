@@ -1,0 +1,523 @@
+"""Typed NovAtel records: log headers, the decoded log bodies, command responses and prompts.
+
+A decoded log is a :class:`Log` = header (:class:`Header` for the long binary / ASCII /
+abbreviated-ASCII header, :class:`ShortHeader` for short binary / short ASCII) + body. Bodies of
+the logs this codec knows are frozen dataclasses whose fields follow the wire order of the
+NovAtel OEM7 reference; every other log keeps its body untouched as :class:`RawBody`.
+
+Field names carry their unit where it is not SI-obvious (``lat_deg``, ``hgt_m``,
+``hor_spd_mps``, ``latency_s`` …). Angles stay in degrees here because that is what the receiver
+reports; conversion to radians happens at the consumer (``vsccore.angles``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields, is_dataclass
+from enum import Enum
+from typing import Any, ClassVar, TypeVar
+
+from drivers.novatel.enums import ClockModelStatus, Datum, PositionType, SolutionStatus, TimeStatus, UTCStatus
+from vsccore.gpstime import gps_to_ns
+
+#: NovAtel log name → message ID. The typed logs plus common logs that pass through raw, so
+#: that ASCII and binary headers of those logs name each other.
+LOG_IDS: dict[str, int] = {
+    "LOG": 1,
+    "LOGLIST": 5,
+    "GPSEPHEM": 7,
+    "IONUTC": 8,
+    "VERSION": 37,
+    "RAWEPHEM": 41,
+    "BESTPOS": 42,
+    "RANGE": 43,
+    "PSRPOS": 47,
+    "SATVIS": 48,
+    "ALMANAC": 73,
+    "TRACKSTAT": 83,
+    "RXSTATUS": 93,
+    "MATCHEDPOS": 96,
+    "BESTVEL": 99,
+    "PSRVEL": 100,
+    "TIME": 101,
+    "RXCONFIG": 128,
+    "RANGECMP": 140,
+    "RTKPOS": 141,
+    "AVEPOS": 172,
+    "PSRDOP": 174,
+    "MARKPOS": 181,
+    "RTKVEL": 216,
+    "MARKTIME": 231,
+    "BESTXYZ": 241,
+    "PSRXYZ": 243,
+    "RTKXYZ": 244,
+    "RAWIMU": 268,
+    "RAWIMUS": 325,
+    "PDPPOS": 469,
+    "INSPVA": 507,
+    "INSPVAS": 508,
+    "MARK2POS": 615,
+    "MARK2TIME": 616,
+    "BSLNXYZ": 686,
+    "GLOEPHEMERIS": 723,
+    "BESTUTM": 726,
+    "CORRIMUDATA": 812,
+    "HEADING": 971,
+    "PSRDOP2": 1163,
+    "BESTSATS": 1194,
+    "HEADING2": 1335,
+    "INSPVAX": 1465,
+}
+
+#: Message ID → log name (inverse of :data:`LOG_IDS`).
+LOG_NAMES: dict[int, str] = {v: k for k, v in LOG_IDS.items()}
+
+
+def log_name_for_id(message_id: int) -> str:
+    """Log name for a message ID (``MSG<id>`` when the ID is not in the table)."""
+    name = LOG_NAMES.get(message_id)
+    return name if name is not None else f"MSG{message_id}"
+
+
+def log_id_for_name(name: str) -> int:
+    """Message ID for a log name; 0 when unknown (no NovAtel log has ID 0)."""
+    message_id = LOG_IDS.get(name)
+    if message_id is not None:
+        return message_id
+    if name.startswith("MSG") and name[3:].isdigit():
+        return int(name[3:])
+    return 0
+
+
+# --- Headers ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Header:
+    """Long header shared by binary (28 bytes), ASCII (``#…;``) and abbreviated-ASCII logs.
+
+    ``seconds`` is GPS seconds of week (the wire carries milliseconds). ``port`` is the port
+    name (binary headers hold only the low byte of the port address, see ``enums``).
+    ``source`` is the measurement source (0 = primary antenna; ASCII name suffix ``_1`` = 1) and
+    ``response`` the binary response bit; both are 0/False for ordinary logs.
+    """
+
+    message_name: str
+    message_id: int
+    port: str
+    sequence: int
+    idle_time_pct: float
+    time_status: TimeStatus
+    week: int
+    seconds: float
+    receiver_status: int
+    reserved: int
+    sw_version: int
+    source: int = 0
+    response: bool = False
+
+    @property
+    def gps_ns(self) -> int:
+        """Log time as integer ns since the GPS epoch."""
+        return gps_to_ns(self.week, self.seconds)
+
+
+@dataclass(frozen=True, slots=True)
+class ShortHeader:
+    """Short header (binary ``AA 44 13``, 12 bytes; ASCII ``%NAMEA,week,seconds;``)."""
+
+    message_name: str
+    message_id: int
+    week: int
+    seconds: float
+
+    @property
+    def gps_ns(self) -> int:
+        """Log time as integer ns since the GPS epoch."""
+        return gps_to_ns(self.week, self.seconds)
+
+
+AnyHeader = Header | ShortHeader
+
+
+# --- Bodies ----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class PositionSolution:
+    """Geodetic position solution: the layout of BESTPOS, MARKPOS and MARK2POS (72 bytes)."""
+
+    MESSAGE_NAME: ClassVar[str] = ""
+    MESSAGE_ID: ClassVar[int] = 0
+
+    sol_status: SolutionStatus
+    pos_type: PositionType
+    lat_deg: float
+    lon_deg: float
+    hgt_m: float  # height above mean sea level
+    undulation_m: float  # geoid − ellipsoid separation; ellipsoidal height = hgt_m + undulation_m
+    datum: Datum
+    lat_sigma_m: float
+    lon_sigma_m: float
+    hgt_sigma_m: float
+    stn_id: str
+    diff_age_s: float
+    sol_age_s: float
+    num_svs: int
+    num_soln_svs: int
+    num_soln_l1_svs: int
+    num_soln_multi_svs: int
+    reserved: int
+    ext_sol_stat: int
+    galileo_beidou_sig_mask: int
+    gps_glonass_sig_mask: int
+
+
+@dataclass(frozen=True, slots=True)
+class BestPos(PositionSolution):
+    """BESTPOS (42): best available position."""
+
+    MESSAGE_NAME: ClassVar[str] = "BESTPOS"
+    MESSAGE_ID: ClassVar[int] = 42
+
+
+@dataclass(frozen=True, slots=True)
+class MarkPos(PositionSolution):
+    """MARKPOS (181): position at the time of an event on the MARK1 input."""
+
+    MESSAGE_NAME: ClassVar[str] = "MARKPOS"
+    MESSAGE_ID: ClassVar[int] = 181
+
+
+@dataclass(frozen=True, slots=True)
+class Mark2Pos(PositionSolution):
+    """MARK2POS (615): position at the time of an event on the MARK2 input."""
+
+    MESSAGE_NAME: ClassVar[str] = "MARK2POS"
+    MESSAGE_ID: ClassVar[int] = 615
+
+
+@dataclass(frozen=True, slots=True)
+class BestVel:
+    """BESTVEL (99): best available velocity; track over ground is clockwise from true north."""
+
+    MESSAGE_NAME: ClassVar[str] = "BESTVEL"
+    MESSAGE_ID: ClassVar[int] = 99
+
+    sol_status: SolutionStatus
+    vel_type: PositionType
+    latency_s: float
+    diff_age_s: float
+    hor_spd_mps: float
+    trk_gnd_deg: float
+    vert_spd_mps: float
+    reserved: float
+
+
+@dataclass(frozen=True, slots=True)
+class BestXyz:
+    """BESTXYZ (241): best position and velocity in ECEF (112 bytes)."""
+
+    MESSAGE_NAME: ClassVar[str] = "BESTXYZ"
+    MESSAGE_ID: ClassVar[int] = 241
+
+    p_sol_status: SolutionStatus
+    pos_type: PositionType
+    p_x_m: float
+    p_y_m: float
+    p_z_m: float
+    p_x_sigma_m: float
+    p_y_sigma_m: float
+    p_z_sigma_m: float
+    v_sol_status: SolutionStatus
+    vel_type: PositionType
+    v_x_mps: float
+    v_y_mps: float
+    v_z_mps: float
+    v_x_sigma_mps: float
+    v_y_sigma_mps: float
+    v_z_sigma_mps: float
+    stn_id: str
+    v_latency_s: float
+    diff_age_s: float
+    sol_age_s: float
+    num_svs: int
+    num_soln_svs: int
+    num_soln_l1_svs: int
+    num_soln_multi_svs: int
+    reserved: int
+    ext_sol_stat: int
+    galileo_beidou_sig_mask: int
+    gps_glonass_sig_mask: int
+
+
+@dataclass(frozen=True, slots=True)
+class EventTime:
+    """Time of an event-input edge: the layout of MARKTIME and MARK2TIME (40 bytes).
+
+    ``week``/``seconds`` are GPS time of the edge; UTC = GPS + offset_s + utc_offset_s.
+    """
+
+    MESSAGE_NAME: ClassVar[str] = ""
+    MESSAGE_ID: ClassVar[int] = 0
+
+    week: int
+    seconds: float
+    offset_s: float
+    offset_std_s: float
+    utc_offset_s: float
+    clock_status: ClockModelStatus
+
+    @property
+    def event_gps_ns(self) -> int:
+        """Event time as integer ns since the GPS epoch."""
+        return gps_to_ns(self.week, self.seconds)
+
+
+@dataclass(frozen=True, slots=True)
+class MarkTime(EventTime):
+    """MARKTIME (231): GPS time of the MARK1 event input."""
+
+    MESSAGE_NAME: ClassVar[str] = "MARKTIME"
+    MESSAGE_ID: ClassVar[int] = 231
+
+
+@dataclass(frozen=True, slots=True)
+class Mark2Time(EventTime):
+    """MARK2TIME (616): GPS time of the MARK2 event input."""
+
+    MESSAGE_NAME: ClassVar[str] = "MARK2TIME"
+    MESSAGE_ID: ClassVar[int] = 616
+
+
+@dataclass(frozen=True, slots=True)
+class Time:
+    """TIME (101): receiver clock model and UTC.
+
+    ``utc_offset_s`` is UTC − GPS as the receiver reports it (e.g. −18.0 in 2017+), so the GPS−UTC
+    leap-second count is :attr:`leap_seconds` = −utc_offset_s.
+    """
+
+    MESSAGE_NAME: ClassVar[str] = "TIME"
+    MESSAGE_ID: ClassVar[int] = 101
+
+    clock_status: ClockModelStatus
+    offset_s: float
+    offset_std_s: float
+    utc_offset_s: float
+    utc_year: int
+    utc_month: int
+    utc_day: int
+    utc_hour: int
+    utc_min: int
+    utc_ms: int
+    utc_status: UTCStatus
+
+    @property
+    def leap_seconds(self) -> int:
+        """GPS − UTC in whole seconds (for ``vsccore.gpstime.gps_ns_to_unix_ns``)."""
+        return -round(self.utc_offset_s)
+
+
+@dataclass(frozen=True, slots=True)
+class Heading:
+    """HEADING (971): heading of the dual-antenna baseline, master → rover (44 bytes).
+
+    ``heading_deg`` is an azimuth, clockwise from true north, 0…360.
+    """
+
+    MESSAGE_NAME: ClassVar[str] = "HEADING"
+    MESSAGE_ID: ClassVar[int] = 971
+
+    sol_status: SolutionStatus
+    pos_type: PositionType
+    length_m: float
+    heading_deg: float
+    pitch_deg: float
+    reserved: float
+    heading_sigma_deg: float
+    pitch_sigma_deg: float
+    stn_id: str
+    num_svs: int
+    num_soln_svs: int
+    num_obs: int
+    num_multi: int
+    sol_source: int
+    ext_sol_stat: int
+    galileo_beidou_sig_mask: int
+    gps_glonass_sig_mask: int
+
+
+@dataclass(frozen=True, slots=True)
+class Heading2:
+    """HEADING2 (1335): heading with rover and master station IDs (48 bytes)."""
+
+    MESSAGE_NAME: ClassVar[str] = "HEADING2"
+    MESSAGE_ID: ClassVar[int] = 1335
+
+    sol_status: SolutionStatus
+    pos_type: PositionType
+    length_m: float
+    heading_deg: float
+    pitch_deg: float
+    reserved: float
+    heading_sigma_deg: float
+    pitch_sigma_deg: float
+    rover_stn_id: str
+    master_stn_id: str
+    num_svs: int
+    num_soln_svs: int
+    num_obs: int
+    num_multi: int
+    sol_source: int
+    ext_sol_stat: int
+    galileo_beidou_sig_mask: int
+    gps_glonass_sig_mask: int
+
+
+@dataclass(frozen=True, slots=True)
+class PsrDop:
+    """PSRDOP (174): dilution of precision of the pseudorange solution and the PRNs used."""
+
+    MESSAGE_NAME: ClassVar[str] = "PSRDOP"
+    MESSAGE_ID: ClassVar[int] = 174
+
+    gdop: float
+    pdop: float
+    hdop: float
+    htdop: float
+    tdop: float
+    cutoff_deg: float
+    prns: tuple[int, ...] = field(default=())
+
+
+class BodyFormat(Enum):
+    """Wire form that a :class:`RawBody` was taken from."""
+
+    BINARY = "binary"
+    ASCII = "ascii"
+    ABBREVIATED = "abbreviated"
+
+
+@dataclass(frozen=True, slots=True)
+class RawBody:
+    """Body of a log this codec does not decode (or could not), kept byte-exact.
+
+    ``data`` is the binary body (between header and CRC), the ASCII body (between ``;`` and
+    ``*``), or the abbreviated-ASCII continuation lines as received.
+    """
+
+    data: bytes
+    fmt: BodyFormat
+
+
+Message = (
+    BestPos | MarkPos | Mark2Pos | BestVel | BestXyz | MarkTime | Mark2Time | Time | Heading | Heading2 | PsrDop
+)
+Body = Message | RawBody
+
+#: Typed body classes by message ID.
+MESSAGE_TYPES: dict[int, type[Message]] = {
+    cls.MESSAGE_ID: cls
+    for cls in (BestPos, MarkPos, Mark2Pos, BestVel, BestXyz, MarkTime, Mark2Time, Time, Heading, Heading2, PsrDop)
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Log:
+    """A decoded NovAtel log: header plus typed (or raw) body."""
+
+    header: Header | ShortHeader
+    body: Body
+
+    @property
+    def name(self) -> str:
+        """Log name without format suffix, e.g. ``BESTPOS``."""
+        return self.header.message_name
+
+
+@dataclass(frozen=True, slots=True)
+class Response:
+    """Abbreviated-ASCII command response: ``<OK`` (ok=True) or ``<ERROR:text`` (ok=False)."""
+
+    ok: bool
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class Prompt:
+    """Interactive port prompt such as ``[COM1]``, ``[USB1]`` or ``[ICOM1]``."""
+
+    port: str
+
+
+def make_header(
+    body: Message | type[Message],
+    *,
+    week: int,
+    seconds: float,
+    port: str = "COM1",
+    sequence: int = 0,
+    idle_time_pct: float = 0.0,
+    time_status: TimeStatus = TimeStatus.FINESTEERING,
+    receiver_status: int = 0,
+    reserved: int = 0,
+    sw_version: int = 0,
+    source: int = 0,
+) -> Header:
+    """Long header for a typed body (name and ID taken from its class)."""
+    cls = body if isinstance(body, type) else type(body)
+    return Header(
+        message_name=cls.MESSAGE_NAME,
+        message_id=cls.MESSAGE_ID,
+        port=port,
+        sequence=sequence,
+        idle_time_pct=idle_time_pct,
+        time_status=time_status,
+        week=week,
+        seconds=seconds,
+        receiver_status=receiver_status,
+        reserved=reserved,
+        sw_version=sw_version,
+        source=source,
+    )
+
+
+def make_short_header(body: Message | type[Message], *, week: int, seconds: float) -> ShortHeader:
+    """Short header for a typed body."""
+    cls = body if isinstance(body, type) else type(body)
+    return ShortHeader(message_name=cls.MESSAGE_NAME, message_id=cls.MESSAGE_ID, week=week, seconds=seconds)
+
+
+_T = TypeVar("_T")
+
+
+def fast_constructor(cls: type[_T]) -> Callable[..., _T]:
+    """Positional constructor of a frozen slotted dataclass that skips the generated ``__init__``.
+
+    A frozen dataclass's ``__init__`` assigns each field through ``object.__setattr__`` looked up
+    at every call, which dominates decoding time for logs with 20+ fields. This builds (once per
+    class) a straight-line function that stores each argument through the slot's member
+    descriptor, about twice as fast. Only for dataclasses whose fields are all plain ``init``
+    fields and that define no ``__post_init__``; the result is indistinguishable from
+    ``cls(*args)`` (equality, hashing, repr, pickling).
+    """
+    if not is_dataclass(cls) or "__slots__" not in vars(cls) or hasattr(cls, "__post_init__"):
+        raise TypeError(f"{cls.__name__} is not a slotted dataclass without __post_init__")
+    names = [f.name for f in fields(cls) if f.init]
+    namespace: dict[str, Any] = {"_new": object.__new__, "_cls": cls}
+    lines = []
+    for i, name in enumerate(names):
+        namespace[f"_set{i}"] = getattr(cls, name).__set__
+        lines.append(f"    _set{i}(obj, a{i})")
+    args = ", ".join(f"a{i}" for i in range(len(names)))
+    source = f"def new_{cls.__name__}({args}):\n    obj = _new(_cls)\n" + "\n".join(lines) + "\n    return obj\n"
+    exec(source, namespace)  # generated from field names only, no outside input
+    constructor: Callable[..., _T] = namespace[f"new_{cls.__name__}"]
+    return constructor
+
+
+#: Fast positional constructors of the records built on every decoded frame.
+new_header = fast_constructor(Header)
+new_short_header = fast_constructor(ShortHeader)
+new_log = fast_constructor(Log)

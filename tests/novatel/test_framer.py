@@ -1,0 +1,359 @@
+"""Framer on mixed and corrupt streams: any chunking gives the same frames; garbage, truncated and
+corrupted frames are rejected and counted by kind, never accepted; NMEA checked with pynmea2 and
+RTCM3 with pyrtcm; random bytes never raise."""
+
+from __future__ import annotations
+
+import io
+import struct
+from typing import Any
+
+import pynmea2
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from pyrtcm import RTCMReader
+from pyrtcm.rtcmhelpers import calc_crc24q
+
+from drivers.novatel import (
+    BestPos,
+    Frame,
+    FrameKind,
+    Framer,
+    Log,
+    Prompt,
+    Response,
+    SkipReason,
+    crc24q,
+    decode_ascii,
+    decode_binary,
+    encode_ascii,
+    encode_binary,
+    iter_frames,
+    make_header,
+    xor_checksum,
+)
+from drivers.novatel.framer import LOG_KINDS, FramerStats
+from tests.novatel.gen import mixed_stream, nmea_gga, rtcm_1005, sample_bestpos
+
+PROPS = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+MIXED = mixed_stream()
+STREAM = b"".join(wire for _, wire, _ in MIXED)
+#: Bytes that start no frame and are no line end: garbage that the framer must count exactly.
+INERT = bytes(b for b in range(256) if b not in b"#%<[$\xaa\xd3\r\n")
+#: Kinds whose frames carry a CRC or checksum.
+CHECKED = {
+    FrameKind.NOVATEL_BINARY,
+    FrameKind.NOVATEL_SHORT_BINARY,
+    FrameKind.NOVATEL_ASCII,
+    FrameKind.NOVATEL_SHORT_ASCII,
+    FrameKind.NMEA,
+    FrameKind.RTCM3,
+}
+
+
+def run(chunks: list[bytes], **options: Any) -> tuple[list[Frame], FramerStats]:
+    framer = Framer(**options)
+    frames: list[Frame] = []
+    for chunk in chunks:
+        frames += framer.feed(chunk)
+    frames += framer.finish()
+    assert framer.pending_bytes == 0
+    return frames, framer.stats
+
+
+def signature(frames: list[Frame]) -> list[tuple[FrameKind, bytes]]:
+    return [(f.kind, f.raw) for f in frames]
+
+
+def assert_accounted(stats: FramerStats) -> None:
+    """Every input byte is in a frame, a line end or a skipped run."""
+    assert stats.bytes_in == stats.bytes_in_frames + stats.total_skipped + stats.line_end_bytes
+
+
+def verify_independently(frame: Frame) -> None:
+    """A returned frame checks by an independent route (decoder with CRC check, pynmea2, pyrtcm)."""
+    if frame.kind in (FrameKind.NOVATEL_BINARY, FrameKind.NOVATEL_SHORT_BINARY):
+        decode_binary(frame.raw)
+    elif frame.kind in (FrameKind.NOVATEL_ASCII, FrameKind.NOVATEL_SHORT_ASCII):
+        decode_ascii(frame.raw)
+    elif frame.kind is FrameKind.NMEA:
+        pynmea2.parse(frame.raw.decode("ascii"), check=True)
+    elif frame.kind is FrameKind.RTCM3:
+        assert calc_crc24q(frame.raw[:-3]) == int.from_bytes(frame.raw[-3:], "big")
+
+
+# --- the mixed stream ------------------------------------------------------------------------
+
+
+def test_mixed_stream_gives_every_frame_in_order() -> None:
+    frames, stats = run([STREAM])
+    assert signature(frames) == [(kind, raw) for kind, _, raw in MIXED]
+    assert all(f.error is None for f in frames)
+    assert stats.total_skipped == 0
+    assert stats.bytes_in_frames + stats.line_end_bytes == len(STREAM)
+    for frame in frames:
+        verify_independently(frame)
+        if frame.kind in LOG_KINDS:
+            assert isinstance(frame.message, Log)
+    responses = [f.message for f in frames if f.kind is FrameKind.RESPONSE]
+    assert responses == [Response(True, "OK"), Response(False, "Invalid Message ID")]
+    prompts = [f.message for f in frames if f.kind is FrameKind.PROMPT]
+    assert prompts == [Prompt("COM1"), Prompt("ICOM1")]
+
+
+def test_nmea_frame_matches_pynmea2() -> None:
+    sentence = nmea_gga(7)
+    frames, _ = run([b"garbage" + sentence + b"\r\n"])
+    (frame,) = frames
+    assert frame.kind is FrameKind.NMEA and frame.raw == sentence
+    reference = pynmea2.parse(sentence.decode(), check=True)
+    assert frame.message.data == reference.data
+    assert frame.message.latitude == pytest.approx(48 + 7.038 / 60, abs=1e-12)
+    assert frame.message.num_sats == "12"
+    star = sentence.index(b"*")
+    assert xor_checksum(sentence[1:star]) == int(sentence[star + 1 :], 16)
+
+
+def test_rtcm3_frame_crc_and_fields_match_pyrtcm() -> None:
+    frame_bytes = rtcm_1005(2003, 4_177_000.1234, 855_000.5678, 4_727_000.9)
+    frames, _ = run([b"\x00\x01" + frame_bytes + b"\xff"])
+    (frame,) = frames
+    assert frame.kind is FrameKind.RTCM3 and frame.raw == frame_bytes
+    # the framer's CRC-24Q is pyrtcm's, and over the whole frame it leaves 0
+    assert crc24q(frame_bytes[:-3]) == calc_crc24q(frame_bytes[:-3])
+    assert crc24q(frame_bytes) == 0
+    msg = frame.message
+    assert msg.identity == "1005"
+    assert msg.DF003 == 2003
+    assert pytest.approx(4_177_000.1234, abs=1e-4) == msg.DF025
+    assert pytest.approx(855_000.5678, abs=1e-4) == msg.DF026
+    assert pytest.approx(4_727_000.9, abs=1e-4) == msg.DF027
+    assert RTCMReader.parse(frame_bytes).DF025 == msg.DF025
+
+
+@pytest.mark.parametrize("station", [0, 1, 4095])
+def test_rtcm3_crc24q_agrees_with_pyrtcm(station: int) -> None:
+    frame_bytes = rtcm_1005(station, -1.0, 2.5, 6_371_000.0)
+    assert crc24q(frame_bytes[:-3]) == calc_crc24q(frame_bytes[:-3])
+
+
+def test_split_at_every_byte_position() -> None:
+    expected = signature(run([STREAM])[0])
+    reference_stats = run([STREAM])[1].to_dict()
+    for cut in range(len(STREAM) + 1):
+        frames, stats = run([STREAM[:cut], STREAM[cut:]])
+        assert signature(frames) == expected, f"split at byte {cut}"
+        assert stats.to_dict() == reference_stats, f"split at byte {cut}"
+
+
+@PROPS
+@given(cuts=st.lists(st.integers(0, len(STREAM)), max_size=40))
+def test_any_chunking_gives_identical_frames(cuts: list[int]) -> None:
+    points = sorted({0, len(STREAM), *cuts})
+    chunks = [STREAM[a:b] for a, b in zip(points, points[1:], strict=False)]
+    frames, stats = run(chunks)
+    one_shot, one_stats = run([STREAM])
+    assert signature(frames) == signature(one_shot)
+    assert stats.to_dict() == one_stats.to_dict()
+
+
+def test_byte_by_byte_feed() -> None:
+    frames, stats = run([STREAM[i : i + 1] for i in range(len(STREAM))])
+    assert signature(frames) == [(kind, raw) for kind, _, raw in MIXED]
+    assert_accounted(stats)
+
+
+def test_frame_reader_and_iter_frames_read_a_file_object() -> None:
+    frames = list(iter_frames(io.BytesIO(STREAM)))
+    assert signature(frames) == [(kind, raw) for kind, _, raw in MIXED]
+
+
+# --- garbage -------------------------------------------------------------------------------
+
+
+@PROPS
+@given(
+    prefix=st.binary(max_size=200).map(lambda b: bytes(INERT[x % len(INERT)] for x in b)),
+    middle=st.binary(max_size=200).map(lambda b: bytes(INERT[x % len(INERT)] for x in b)),
+    suffix=st.binary(max_size=200).map(lambda b: bytes(INERT[x % len(INERT)] for x in b)),
+    where=st.integers(0, len(MIXED)),
+)
+def test_inert_garbage_is_skipped_and_counted_exactly(prefix: bytes, middle: bytes, suffix: bytes, where: int) -> None:
+    parts = [wire for _, wire, _ in MIXED]
+    if MIXED[where - 1][0] is FrameKind.NOVATEL_ABBREV if where else False:
+        where -= 1  # garbage right after an abbreviated log would be read as its end: keep it apart
+    stream = prefix + b"".join(parts[:where]) + middle + b"".join(parts[where:]) + suffix
+    frames, stats = run([stream])
+    assert signature(frames) == [(kind, raw) for kind, _, raw in MIXED]
+    assert stats.bytes_skipped[SkipReason.GARBAGE] == len(prefix) + len(middle) + len(suffix)
+    assert sum(stats.crc_failures.values()) == 0
+    assert_accounted(stats)
+
+
+@PROPS
+@given(garbage=st.lists(st.binary(max_size=120), min_size=len(MIXED) + 1, max_size=len(MIXED) + 1))
+def test_any_garbage_between_frames_never_hides_a_frame(garbage: list[bytes]) -> None:
+    """Arbitrary bytes (sync bytes included) between frames: every real frame is still found, in order.
+
+    The garbage may itself hold something frame-like; whatever else is returned must verify.
+    """
+    stream = b""
+    for junk, (_, wire, _) in zip(garbage, [*MIXED, (None, b"", b"")], strict=True):
+        stream += junk + b"\r\n" + wire
+    frames, stats = run([stream])
+    want = iter((kind, raw) for kind, _, raw in MIXED)
+    pending: tuple[Any, bytes] | None = next(want)
+    for frame in frames:
+        verify_independently(frame)
+        if pending is not None and (frame.kind, frame.raw) == pending:
+            pending = next(want, None)
+    assert pending is None, f"frame not found: {pending}"
+    assert_accounted(stats)
+
+
+# --- truncated frames ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("index", [i for i, (kind, _, _) in enumerate(MIXED) if kind in CHECKED])
+def test_frame_cut_at_end_of_stream_is_counted_as_truncated(index: int) -> None:
+    kind, _, raw = MIXED[index]
+    for keep in range(5, len(raw) - 1, max(1, len(raw) // 17)):  # 5 bytes: every sync is recognisable
+        frames, stats = run([raw[:keep]])
+        assert frames == []
+        assert stats.truncated == 1, (kind, keep)
+        assert stats.bytes_skipped[SkipReason.TRUNCATED] == keep, (kind, keep)
+        assert_accounted(stats)
+
+
+@pytest.mark.parametrize("cut", [10, 50, 120])
+def test_ascii_log_cut_by_a_line_break_is_truncated_and_the_next_log_found(cut: int) -> None:
+    body = sample_bestpos()
+    line = encode_ascii(make_header(body, week=2300, seconds=10.0), body)
+    frames, stats = run([line[:cut] + b"\r\n" + line])
+    assert signature(frames) == [(FrameKind.NOVATEL_ASCII, line.rstrip())]
+    assert stats.truncated == 1
+    assert stats.bytes_skipped[SkipReason.TRUNCATED] == cut
+    assert_accounted(stats)
+
+
+def test_binary_log_cut_short_then_another_is_rejected_not_accepted() -> None:
+    body = sample_bestpos()
+    frame = encode_binary(make_header(body, week=2300, seconds=10.0), body)
+    for keep in (5, 28, 60, len(frame) - 1):
+        frames, stats = run([frame[:keep] + frame + frame])
+        assert signature(frames) == [(FrameKind.NOVATEL_BINARY, frame)] * 2
+        assert stats.bytes_skipped[SkipReason.CRC_FAILURE] + stats.bytes_skipped[SkipReason.TRUNCATED] == keep
+        assert_accounted(stats)
+
+
+# --- corrupted frames ------------------------------------------------------------------------
+
+
+def _flip_crc(kind: FrameKind, raw: bytes, which: int, bit: int) -> bytes:
+    """Corrupt the CRC / checksum field of a frame (a hex digit becomes another hex digit)."""
+    data = bytearray(raw)
+    if kind in (FrameKind.NOVATEL_BINARY, FrameKind.NOVATEL_SHORT_BINARY, FrameKind.RTCM3):
+        width = 3 if kind is FrameKind.RTCM3 else 4
+        data[len(data) - width + which % width] ^= 1 << bit
+    else:
+        width = 2 if kind is FrameKind.NMEA else 8
+        pos = len(data) - width + which % width
+        digits = b"0123456789abcdef" if kind is not FrameKind.NMEA else b"0123456789ABCDEF"
+        old = digits.index(bytes([data[pos]]).lower() if kind is not FrameKind.NMEA else bytes([data[pos]]))
+        data[pos] = digits[(old + 1 + bit) % 16]
+    return bytes(data)
+
+
+@PROPS
+@given(
+    index=st.sampled_from([i for i, (kind, _, _) in enumerate(MIXED) if kind in CHECKED]),
+    which=st.integers(0, 7),
+    bit=st.integers(0, 7),
+)
+def test_corrupted_crc_is_rejected_and_counted_by_kind(index: int, which: int, bit: int) -> None:
+    kind, wire, raw = MIXED[index]
+    bad = _flip_crc(kind, raw, which, bit)
+    assert bad != raw
+    tail = wire[len(raw) :]
+    frames, stats = run([bad + tail + wire])
+    assert signature(frames) == [(kind, raw)]
+    assert stats.crc_failures == {k: int(k is kind) for k in FrameKind}
+    assert stats.bytes_skipped[SkipReason.CRC_FAILURE] == len(raw)
+    assert_accounted(stats)
+
+
+@PROPS
+@given(index=st.sampled_from([i for i, (kind, _, _) in enumerate(MIXED) if kind in CHECKED]), data=st.data())
+def test_a_flipped_bit_anywhere_is_never_accepted(index: int, data: st.DataObject) -> None:
+    _, wire, raw = MIXED[index]
+    position = data.draw(st.integers(0, len(raw) - 1))
+    bit = data.draw(st.integers(0, 7))
+    bad = bytearray(raw)
+    bad[position] ^= 1 << bit
+    follower = MIXED[(index + 1) % len(MIXED)]
+    if follower[0] is FrameKind.NOVATEL_ABBREV:
+        follower = MIXED[0]
+    stream = bytes(bad) + wire[len(raw) :] + follower[1]
+    frames, stats = run([stream])
+    for frame in frames:
+        assert frame.raw != bytes(bad)
+        verify_independently(frame)
+    assert (follower[0], follower[2]) in signature(frames)
+    assert_accounted(stats)
+
+
+def test_oversize_binary_claim_is_counted_and_does_not_stall() -> None:
+    body = sample_bestpos()
+    frame = encode_binary(make_header(body, week=2300, seconds=10.0), body)
+    liar = bytearray(frame[:28])
+    struct.pack_into("<H", liar, 8, 60000)
+    frames, stats = run([bytes(liar) + frame], max_frame_len=4096)
+    assert signature(frames) == [(FrameKind.NOVATEL_BINARY, frame)]
+    assert stats.oversize[FrameKind.NOVATEL_BINARY] == 1
+    assert_accounted(stats)
+
+
+def test_text_without_line_end_is_bounded() -> None:
+    frames, stats = run([b"#BESTPOSA," + b"A" * 5000], max_frame_len=1024)
+    assert frames == []
+    assert stats.bytes_skipped[SkipReason.GARBAGE] + stats.bytes_skipped[SkipReason.OVERSIZE] == 5010
+    assert_accounted(stats)
+
+
+# --- robustness ------------------------------------------------------------------------------
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.binary(max_size=3000), cuts=st.lists(st.integers(0, 3000), max_size=8))
+def test_random_bytes_never_raise(data: bytes, cuts: list[int]) -> None:
+    points = sorted({0, len(data), *(c for c in cuts if c <= len(data))})
+    frames, stats = run([data[a:b] for a, b in zip(points, points[1:], strict=False)])
+    for frame in frames:
+        verify_independently(frame)
+    assert_accounted(stats)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.lists(st.sampled_from([*(wire for _, wire, _ in MIXED), b"\xaa", b"\xaa\x44\x12", b"#B", b"$G", b"<",
+                                       b"[", b"\xd3\x00", b"*", b"\r\n", b";", b","]), max_size=60))
+def test_frame_fragments_in_any_order_never_raise(data: list[bytes]) -> None:
+    stream = b"".join(data)
+    frames, stats = run([stream])
+    for frame in frames:
+        verify_independently(frame)
+    assert_accounted(stats)
+
+
+def test_flush_completes_an_abbreviated_log_after_a_read_timeout() -> None:
+    body = sample_bestpos()
+    from drivers.novatel import encode_abbreviated
+
+    text = encode_abbreviated(make_header(body, week=2300, seconds=10.0), body)
+    framer = Framer()
+    assert framer.feed(text) == []  # the next byte could be another continuation line
+    (frame,) = framer.flush()
+    assert frame.kind is FrameKind.NOVATEL_ABBREV
+    assert isinstance(frame.message, Log) and isinstance(frame.message.body, BestPos)
+    assert frame.message.body == decode_ascii(encode_ascii(frame.message.header, frame.message.body)).body
