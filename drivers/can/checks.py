@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from vsccore.errors import ConfigError, DecodeError
 
 __all__ = [
+    "CAN_EFF_FLAG",
     "CHECKSUM_NONE",
     "VW_MQB_DATA_IDS",
     "ChecksumAlgorithm",
@@ -36,9 +37,25 @@ __all__ = [
     "available_checksums",
     "counter_errors",
     "crc8_8h2f_table",
+    "frame_key",
     "get_checksum",
     "register_checksum",
 ]
+
+
+CAN_EFF_FLAG = 0x8000_0000
+"""Marks a 29-bit (extended) identifier in a frame key, as SocketCAN's ``can_id`` does."""
+
+
+def frame_key(arbitration_id: int, is_extended: bool = False) -> int:
+    """The identifier key of a frame: 11- or 29-bit id, with :data:`CAN_EFF_FLAG` for extended frames.
+
+    Base frame 0x101 and extended frame 0x00000101 are different messages; decoders and
+    :class:`~drivers.can.vector_decode.FrameBatch` keep them apart by this key. An
+    ``arbitration_id`` that already carries the flag keeps it.
+    """
+    extended = is_extended or bool(arbitration_id & CAN_EFF_FLAG)
+    return (arbitration_id & 0x1FFF_FFFF) | (CAN_EFF_FLAG if extended else 0)
 
 
 class FrameFlag(enum.IntFlag):
@@ -79,7 +96,10 @@ class ChecksumAlgorithm(Protocol):
     the same for ``n`` frames of one identifier at once.
     """
 
-    name: str
+    @property
+    def name(self) -> str:
+        """The name configurations use (``algorithm = "..."``)."""
+        ...
 
     def supports(self, arbitration_id: int) -> bool:
         """Whether the algorithm knows how to protect frames with this identifier."""
@@ -125,6 +145,10 @@ def _repeat16(value: int) -> tuple[int, ...]:
     return (value,) * 16
 
 
+def _hex(text: str) -> tuple[int, ...]:
+    return tuple(bytes.fromhex(text))
+
+
 # Per-message "data ID" bytes of the VW MQB E2E profile (AUTOSAR E2E P2), indexed by the
 # 4-bit counter. Public knowledge collected by the opendbc project (MIT); many messages use
 # one constant for all counter values, others a table.
@@ -132,26 +156,26 @@ VW_MQB_DATA_IDS: Mapping[int, tuple[int, ...]] = {
     0x040: _repeat16(0x40),  # Airbag_01
     0x086: _repeat16(0x86),  # LWI_01
     0x09F: _repeat16(0xF5),  # LH_EPS_03
-    0x0AD: (0x3F, 0x69, 0x39, 0xDC, 0x94, 0xF9, 0x14, 0x64, 0xD8, 0x6A, 0x34, 0xCE, 0xA2, 0x55, 0xB5, 0x2C),  # Getriebe_11
-    0x0FD: (0xB4, 0xEF, 0xF8, 0x49, 0x1E, 0xE5, 0xC2, 0xC0, 0x97, 0x19, 0x3C, 0xC9, 0xF1, 0x98, 0xD6, 0x61),  # ESP_21
+    0x0AD: _hex("3F 69 39 DC 94 F9 14 64 D8 6A 34 CE A2 55 B5 2C"),  # Getriebe_11
+    0x0FD: _hex("B4 EF F8 49 1E E5 C2 C0 97 19 3C C9 F1 98 D6 61"),  # ESP_21
     0x101: _repeat16(0xAA),  # ESP_02
     0x106: _repeat16(0x07),  # ESP_05
     0x116: _repeat16(0xAC),  # ESP_10
     0x117: _repeat16(0x16),  # ACC_10
-    0x120: (0xC4, 0xE2, 0x4F, 0xE4, 0xF8, 0x2F, 0x56, 0x81, 0x9F, 0xE5, 0x83, 0x44, 0x05, 0x3F, 0x97, 0xDF),  # TSK_06
-    0x121: (0xE9, 0x65, 0xAE, 0x6B, 0x7B, 0x35, 0xE5, 0x5F, 0x4E, 0xC7, 0x86, 0xA2, 0xBB, 0xDD, 0xEB, 0xB4),  # Motor_20
-    0x122: (0x37, 0x7D, 0xF3, 0xA9, 0x18, 0x46, 0x6D, 0x4D, 0x3D, 0x71, 0x92, 0x9C, 0xE5, 0x32, 0x10, 0xB9),  # ACC_06
+    0x120: _hex("C4 E2 4F E4 F8 2F 56 81 9F E5 83 44 05 3F 97 DF"),  # TSK_06
+    0x121: _hex("E9 65 AE 6B 7B 35 E5 5F 4E C7 86 A2 BB DD EB B4"),  # Motor_20
+    0x122: _hex("37 7D F3 A9 18 46 6D 4D 3D 71 92 9C E5 32 10 B9"),  # ACC_06
     0x126: _repeat16(0xDA),  # HCA_01
-    0x12B: (0x6A, 0x38, 0xB4, 0x27, 0x22, 0xEF, 0xE1, 0xBB, 0xF8, 0x80, 0x84, 0x49, 0xC7, 0x9E, 0x1E, 0x2B),  # GRA_ACC_01
-    0x12E: (0xF8, 0xE5, 0x97, 0xC9, 0xD6, 0x07, 0x47, 0x21, 0x66, 0xDD, 0xCF, 0x6F, 0xA1, 0x94, 0x74, 0x63),  # ACC_07
-    0x187: (0x7F, 0xED, 0x17, 0xC2, 0x7C, 0xEB, 0x44, 0x21, 0x01, 0xFA, 0xDB, 0x15, 0x4A, 0x6B, 0x23, 0x05),  # Motor_EV_01
-    0x1AB: (0x13, 0x21, 0x9B, 0x6A, 0x9A, 0x62, 0xD4, 0x65, 0x18, 0xF1, 0xAB, 0x16, 0x32, 0x89, 0xE7, 0x26),  # ESP_33
+    0x12B: _hex("6A 38 B4 27 22 EF E1 BB F8 80 84 49 C7 9E 1E 2B"),  # GRA_ACC_01
+    0x12E: _hex("F8 E5 97 C9 D6 07 47 21 66 DD CF 6F A1 94 74 63"),  # ACC_07
+    0x187: _hex("7F ED 17 C2 7C EB 44 21 01 FA DB 15 4A 6B 23 05"),  # Motor_EV_01
+    0x1AB: _hex("13 21 9B 6A 9A 62 D4 65 18 F1 AB 16 32 89 E7 26"),  # ESP_33
     0x30C: _repeat16(0x0F),  # ACC_02
     0x30F: _repeat16(0x0C),  # SWA_01
     0x324: _repeat16(0x27),  # ACC_04
     0x3C0: _repeat16(0xC3),  # Klemmen_Status_01
-    0x3D5: (0xC5, 0x39, 0xC7, 0xF9, 0x92, 0xD8, 0x24, 0xCE, 0xF1, 0xB5, 0x7A, 0xC4, 0xBC, 0x60, 0xE3, 0xD1),  # Licht_Anf_01
-    0x65D: (0xAC, 0xB3, 0xAB, 0xEB, 0x7A, 0xE1, 0x3B, 0xF7, 0x73, 0xBA, 0x7C, 0x9E, 0x06, 0x5F, 0x02, 0xD9),  # ESP_20
+    0x3D5: _hex("C5 39 C7 F9 92 D8 24 CE F1 B5 7A C4 BC 60 E3 D1"),  # Licht_Anf_01
+    0x65D: _hex("AC B3 AB EB 7A E1 3B F7 73 BA 7C 9E 06 5F 02 D9"),  # ESP_20
 }
 
 
@@ -195,7 +219,9 @@ class VwMqbCrc8:
     def compute_many(self, arbitration_id: int, data: NDArray[np.uint8]) -> NDArray[np.int64]:
         ids = self._ids(arbitration_id)
         if data.ndim != 2 or data.shape[1] < 2:
-            raise DecodeError(f"vw_mqb_crc8: CAN id 0x{arbitration_id:X} payload array of shape {data.shape} is too short")
+            raise DecodeError(
+                f"vw_mqb_crc8: CAN id 0x{arbitration_id:X} payload array of shape {data.shape} is too short"
+            )
         table = self._table
         crc = np.full(data.shape[0], 0xFF, dtype=np.uint8)
         for col in range(1, data.shape[1]):

@@ -11,8 +11,6 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import cantools
-import cantools.database
 from cantools.database.can import Database
 
 from vsccore.errors import ConfigError
@@ -20,10 +18,12 @@ from vsccore.errors import ConfigError
 __all__ = ["dbc_text_line_of", "load_dbc", "parse_dbc_text"]
 
 
-def load_dbc(path: str | Path, *, strict: bool = True) -> Database:
+def load_dbc(path: str | Path, *, strict: bool = False) -> Database:
     """Load a DBC file.
 
-    ``strict`` keeps cantools' checks that signals fit in their message and do not overlap.
+    ``strict`` turns on cantools' checks that signals fit in their message and do not
+    overlap. It is off by default because production DBCs (the public VW MQB one among them)
+    contain overlapping alternative definitions that decode fine.
 
     Raises:
         ConfigError: the file is missing or unreadable, or does not parse (the message names
@@ -39,7 +39,7 @@ def load_dbc(path: str | Path, *, strict: bool = True) -> Database:
     return parse_dbc_text(text, source=str(p), strict=strict)
 
 
-def parse_dbc_text(text: str, *, source: str = "<dbc>", strict: bool = True) -> Database:
+def parse_dbc_text(text: str, *, source: str = "<dbc>", strict: bool = False) -> Database:
     """Parse DBC text (see :func:`load_dbc`); ``source`` names it in error messages."""
     db = Database(strict=strict)
     try:
@@ -55,8 +55,8 @@ def _describe(exc: BaseException, text: str, source: str) -> str:
         line, column, reason = parse_error
         return f"{source}:{line}:{column}: DBC syntax error: {reason}"
     reason = str(exc) or type(exc).__name__
-    line = _line_for_reason(reason, text)
-    where = f"{source}:{line}" if line else source
+    found = _line_for_reason(reason, text)
+    where = f"{source}:{found}" if found else source
     return f"{where}: invalid DBC: {reason}"
 
 
@@ -79,7 +79,7 @@ def _find_parse_error(exc: BaseException) -> tuple[int, int, str] | None:
 
 def _line_for_reason(reason: str, text: str) -> int | None:
     """Best effort: the line of the first message or signal named in a semantic error."""
-    for name in re.findall(r"'([A-Za-z_][A-Za-z0-9_]*)'", reason):
+    for name in re.findall(r"[A-Za-z_][A-Za-z0-9_]*", reason):
         line = dbc_text_line_of(text, name)
         if line is not None:
             return line

@@ -1,0 +1,878 @@
+"""Live CAN bus session: one python-can interface, every frame with its device and host time.
+
+:class:`CanBusSession` opens any python-can interface named in a :class:`CanBusConfig`
+(``socketcan``, ``pcan``, ``kvaser``, ``vector``, ``slcan``, ``socketcand``, ``virtual``, …) and
+runs one reader thread that hands every frame, error frames included, to a consumer callback as
+a frozen :class:`CanFrame`. It keeps bus statistics (frames/s, bus load from the frames' bit
+lengths with their stuff bits, error-frame counts, controller state) and recovers by itself from
+a bus-off controller and from an interface that disappears (a USB adapter pulled, a socketcand
+server gone): close, back off on the stop event, reopen, and report the gap as a :class:`BusGap`
+event with its start and end host times. ``stop()`` returns promptly, even during a back-off.
+
+Which clock ``msg.timestamp`` comes from depends on the interface (see :data:`TIMESTAMP_SOURCES`);
+every frame says which one it carries, and the host receive time always comes from the injected
+:class:`~vsccore.clock.Clock` so simulated sessions stay on one time base.
+
+Only python-can ``Message`` objects are handled here; decoding signals is ``drivers.can.roles``'s job.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import socket
+import threading
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import can
+from can.util import len2dlc
+
+from vsccore.clock import Clock
+from vsccore.errors import ConfigError, DeviceError, DeviceTimeoutError
+
+__all__ = [
+    "BusEvent",
+    "BusGap",
+    "BusLoadMeter",
+    "BusLost",
+    "BusOpened",
+    "BusState",
+    "BusStateChanged",
+    "BusStats",
+    "CanBusConfig",
+    "CanBusSession",
+    "CanFrame",
+    "CanFrameFlag",
+    "TimestampSource",
+    "crc15_can",
+    "error_counters_from_error_frame",
+    "frame_bit_times",
+    "open_bus",
+    "timestamp_source_for",
+]
+
+log = logging.getLogger(__name__)
+
+
+class TimestampSource(enum.Enum):
+    """Which clock a frame's device timestamp (``msg.timestamp``) was read from."""
+
+    HARDWARE = "hardware"
+    """The adapter's own counter, latched at the frame's end of frame (PCAN, Kvaser, Vector, …)."""
+    KERNEL = "kernel"
+    """Linux ``SO_TIMESTAMP(NS)`` taken in the CAN driver's receive path (SocketCAN; socketcand
+    forwards the *server host's* kernel stamp, so it is a remote clock)."""
+    HOST = "host"
+    """python-can stamped ``time.time()`` in user space (virtual bus, slcan, serial adapters);
+    as good as the host receive time and no better."""
+
+
+# Per python-can interface name. Interfaces not listed are taken as HOST, the conservative choice:
+# the time estimator then treats their stamps as carrying host latency.
+TIMESTAMP_SOURCES: Mapping[str, TimestampSource] = MappingProxyType(
+    {
+        "socketcan": TimestampSource.KERNEL,
+        "socketcand": TimestampSource.KERNEL,
+        "pcan": TimestampSource.HARDWARE,
+        "kvaser": TimestampSource.HARDWARE,
+        "vector": TimestampSource.HARDWARE,
+        "ixxat": TimestampSource.HARDWARE,
+        "neovi": TimestampSource.HARDWARE,
+        "etas": TimestampSource.HARDWARE,
+        "nican": TimestampSource.HARDWARE,
+        "nixnet": TimestampSource.HARDWARE,
+        "systec": TimestampSource.HARDWARE,
+        "virtual": TimestampSource.HOST,
+        "slcan": TimestampSource.HOST,
+        "serial": TimestampSource.HOST,
+        "seeedstudio": TimestampSource.HOST,
+        "udp_multicast": TimestampSource.HOST,
+    }
+)
+
+
+def timestamp_source_for(interface: str) -> TimestampSource:
+    """The clock that python-can's ``interface`` stamps received frames with (HOST if unknown)."""
+    return TIMESTAMP_SOURCES.get(interface.lower(), TimestampSource.HOST)
+
+
+class BusState(enum.Enum):
+    """Controller state as far as the interface lets us see it."""
+
+    UNKNOWN = "unknown"
+    """The interface reports no state (virtual bus, most adapters through python-can)."""
+    ACTIVE = "active"
+    WARNING = "warning"
+    """Error counters above 96: still error active, but the bus is in trouble."""
+    PASSIVE = "passive"
+    BUS_OFF = "bus_off"
+    DISCONNECTED = "disconnected"
+    """The interface is closed: being reopened after a failure, or the session is stopped."""
+
+
+class CanFrameFlag(enum.Flag):
+    """Properties of a received frame besides identifier and payload."""
+
+    NONE = 0
+    ERROR_FRAME = enum.auto()
+    """An error report from the controller (SocketCAN error class in the identifier)."""
+    REMOTE = enum.auto()
+    BITRATE_SWITCH = enum.auto()
+    ERROR_STATE_INDICATOR = enum.auto()
+    TX_ECHO = enum.auto()
+    """The interface's echo of a frame this host sent (``msg.is_rx`` false)."""
+
+
+@dataclass(frozen=True, slots=True)
+class CanFrame:
+    """One frame as received, with both its times."""
+
+    device_ts_ns: int | None
+    """``msg.timestamp`` in ns on the clock named by ``timestamp_source`` (None if the interface gave none)."""
+    host_ts_ns: int
+    """Host receive time from the session's :class:`~vsccore.clock.Clock` (ns since the Unix epoch)."""
+    arbitration_id: int
+    is_extended: bool
+    is_fd: bool
+    dlc: int
+    """Data length code as on the wire (0..15; for CAN FD the code, not the byte count)."""
+    data: bytes
+    flags: CanFrameFlag
+    timestamp_source: TimestampSource
+    channel: str
+
+
+# --- events ------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class BusOpened:
+    """The interface was opened (at start and after every recovery)."""
+
+    host_ts_ns: int
+    bus: str
+    interface: str
+    channel: str
+    channel_info: str
+    timestamp_source: TimestampSource
+
+
+@dataclass(frozen=True, slots=True)
+class BusLost:
+    """Reception stopped: the interface failed, went bus-off or fell silent; a gap begins."""
+
+    host_ts_ns: int
+    bus: str
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class BusGap:
+    """A span without reception, reported when it ends (reopened) or when the session stops."""
+
+    start_ns: int
+    """Host time at which the loss was detected."""
+    end_ns: int
+    """Host time at which the interface was open again (or the session stopped)."""
+    bus: str
+    reason: str
+    reopen_attempts: int
+    recovered: bool
+    """False when the session was stopped before the interface came back."""
+    last_frame_ns: int | None
+    """Host time of the last frame received before the gap (None if there was none)."""
+
+
+@dataclass(frozen=True, slots=True)
+class BusStateChanged:
+    """The controller state changed (from ``bus.state`` where supported, or from error frames)."""
+
+    host_ts_ns: int
+    bus: str
+    previous: BusState
+    state: BusState
+
+
+@dataclass(frozen=True, slots=True)
+class BusStats:
+    """Statistics of the bus: totals since start, rates over the last ``window_s``."""
+
+    host_ts_ns: int
+    bus: str
+    state: BusState
+    frames_total: int
+    error_frames_total: int
+    gaps_total: int
+    frames_per_s: float
+    error_frames_per_s: float
+    bus_load_pct: float | None
+    """Share of bit time occupied by the frames in the window (None when the bitrate is unknown)."""
+    window_s: float
+    tx_error_counter: int | None = None
+    """The controller's transmit error counter (TEC) from its last error report (None: never reported)."""
+    rx_error_counter: int | None = None
+    """The controller's receive error counter (REC) from its last error report (None: never reported)."""
+
+
+BusEvent = BusOpened | BusLost | BusGap | BusStateChanged | BusStats
+
+
+# --- configuration and opening -----------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class CanBusConfig:
+    """How to open one CAN bus through python-can.
+
+    ``options`` are passed to ``can.Bus`` as they are (``host``/``port`` for socketcand,
+    ``receive_own_messages``, vendor options …). ``timestamp_source`` overrides the per-interface
+    default of :func:`timestamp_source_for` (e.g. an slcan adapter with hardware stamps).
+    """
+
+    interface: str
+    channel: str
+    bitrate: int | None = 500_000
+    fd: bool = False
+    data_bitrate: int | None = None
+    options: Mapping[str, Any] = field(default_factory=dict)
+    name: str = "can"
+    timestamp_source: TimestampSource | None = None
+
+    def __post_init__(self) -> None:
+        where = f"can {self.name!r}"
+        if not self.interface:
+            raise ConfigError(f"{where}.interface: must name a python-can interface")
+        if self.bitrate is not None and self.bitrate <= 0:
+            raise ConfigError(f"{where}.bitrate: must be > 0, got {self.bitrate}")
+        if self.data_bitrate is not None:
+            if not self.fd:
+                raise ConfigError(f"{where}.data_bitrate: given but fd is false")
+            if self.data_bitrate <= 0:
+                raise ConfigError(f"{where}.data_bitrate: must be > 0, got {self.data_bitrate}")
+
+    @property
+    def clock(self) -> TimestampSource:
+        """The clock of ``msg.timestamp`` for this interface."""
+        return self.timestamp_source or timestamp_source_for(self.interface)
+
+    def describe(self) -> str:
+        """``"name (interface channel)"`` for messages and logs."""
+        return f"CAN bus {self.name!r} ({self.interface} {self.channel})"
+
+    @classmethod
+    def from_mapping(cls, table: Mapping[str, Any], **overrides: Any) -> CanBusConfig:
+        """Build from a ``[[can]]`` table of the session configuration (e.g. a pydantic ``model_dump()``).
+
+        Reads ``name``, ``interface``, ``channel``, ``bitrate``, ``fd``, ``data_bitrate``, and
+        ``host`` / ``port`` (socketcand), which go into ``options``; an ``options`` table is
+        passed to python-can as it is. Other keys (``dbc``, ``roles`` …) are ignored here.
+        ``overrides`` replace fields (e.g. ``channel=`` from a command-line option); ``None``
+        values in ``table`` or ``overrides`` mean "not given".
+
+        Raises:
+            ConfigError: a missing interface or channel, or an invalid value (the key is named).
+        """
+        merged = {k: v for k, v in table.items() if v is not None}
+        merged.update({k: v for k, v in overrides.items() if v is not None})
+        name = str(merged.get("name", "can"))
+        options: dict[str, Any] = dict(merged.get("options") or {})
+        for key in ("host", "port"):
+            if key in merged:
+                options[key] = merged[key]
+        for key in ("interface", "channel"):
+            if not merged.get(key):
+                raise ConfigError(f"can {name!r}.{key}: missing (required)")
+        source = merged.get("timestamp_source")
+        try:
+            clock = TimestampSource(source) if isinstance(source, str) else source
+        except ValueError:
+            known = ", ".join(s.value for s in TimestampSource)
+            raise ConfigError(f"can {name!r}.timestamp_source: {source!r} is not one of {known}") from None
+        return cls(
+            interface=str(merged["interface"]),
+            channel=str(merged["channel"]),
+            bitrate=merged.get("bitrate", 500_000),
+            fd=bool(merged.get("fd", False)),
+            data_bitrate=merged.get("data_bitrate"),
+            options=options,
+            name=name,
+            timestamp_source=clock,
+        )
+
+
+def _probe_socketcand(config: CanBusConfig, timeout_s: float) -> None:
+    """Fail fast when no socketcand server answers or it does not serve the channel.
+
+    python-can's client retries ``connect`` for 10 s, waits for ``< hi >`` without a timeout,
+    and leaks its socket when the handshake fails; that would make a session's reopen (and so its
+    ``stop()``) hang. This probe runs the greeting and ``< open >`` with a short timeout first.
+    """
+    host = str(config.options.get("host", "127.0.0.1"))
+    port = int(config.options.get("port", 29536))
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s) as sock:
+            sock.settimeout(timeout_s)
+            greeting = sock.recv(64)
+            if not greeting.startswith(b"< hi >"):
+                raise DeviceError(
+                    f"{config.describe()}: {host}:{port} did not greet as socketcand (got {greeting[:20]!r})"
+                )
+            sock.sendall(f"< open {config.channel} >".encode("ascii", errors="replace"))
+            reply = sock.recv(64)
+    except OSError as exc:
+        raise DeviceError(f"{config.describe()}: no socketcand server at {host}:{port}: {exc}") from exc
+    if not reply.startswith(b"< ok >"):
+        raise DeviceError(
+            f"{config.describe()}: socketcand server {host}:{port} refused bus {config.channel!r} ({reply[:40]!r})"
+        )
+
+
+def open_bus(config: CanBusConfig, *, probe_timeout_s: float = 1.0) -> can.BusABC:
+    """Open the python-can interface of ``config``.
+
+    The bitrate is passed when known; ``fd`` and ``data_bitrate`` only for CAN FD, so classic
+    interfaces that do not accept them are not bothered.
+
+    Raises:
+        DeviceError: the interface cannot be opened (unknown interface name, missing driver,
+            adapter not present, socketcand server not answering); the message names the bus.
+    """
+    kwargs: dict[str, Any] = dict(config.options)
+    if config.bitrate is not None:
+        kwargs["bitrate"] = config.bitrate
+    if config.fd:
+        kwargs["fd"] = True
+        if config.data_bitrate is not None:
+            kwargs["data_bitrate"] = config.data_bitrate
+    if config.interface == "socketcand":
+        _probe_socketcand(config, probe_timeout_s)
+    try:
+        return can.Bus(interface=config.interface, channel=config.channel, **kwargs)
+    except (can.CanError, OSError, ImportError, ValueError, TypeError) as exc:
+        raise DeviceError(f"{config.describe()}: cannot open: {exc}") from exc
+
+
+# --- frame bit lengths and bus load ------------------------------------------------------------
+
+_CRC15_POLY = 0x4599
+
+
+def crc15_can(bits: list[int]) -> int:
+    """CAN CRC-15 (polynomial 0x4599, init 0) over a bit sequence, MSB first."""
+    crc = 0
+    for bit in bits:
+        nxt = bit ^ ((crc >> 14) & 1)
+        crc = (crc << 1) & 0x7FFF
+        if nxt:
+            crc ^= _CRC15_POLY
+    return crc
+
+
+def _bits(value: int, width: int) -> list[int]:
+    return [(value >> i) & 1 for i in range(width - 1, -1, -1)]
+
+
+def _stuff_bits(bits: list[int]) -> int:
+    """Number of stuff bits the transmitter inserts into ``bits`` (after five equal bits, one opposite)."""
+    count = 0
+    run = 0
+    last = -1
+    for bit in bits:
+        if bit == last:
+            run += 1
+        else:
+            last, run = bit, 1
+        if run == 5:
+            count += 1
+            # the stuff bit is the complement and starts a new run of length 1
+            last, run = 1 - bit, 1
+    return count
+
+
+# Fixed-form bits after the CRC: CRC delimiter, ACK slot, ACK delimiter, 7 EOF, 3 intermission.
+_TAIL_BITS = 13
+
+
+def frame_bit_times(
+    arbitration_id: int,
+    is_extended: bool,
+    data: bytes,
+    *,
+    dlc: int | None = None,
+    is_remote: bool = False,
+    is_fd: bool = False,
+    bitrate_switch: bool = False,
+) -> tuple[int, int]:
+    """Bits on the wire of one frame, as ``(nominal_rate_bits, data_rate_bits)``.
+
+    Classic CAN frames are exact: the CRC-15 is computed and the stuff bits of SOF … CRC are
+    counted as the transmitter inserts them; the 3-bit intermission is included. CAN FD frames
+    are an estimate: dynamic stuff bits are counted over SOF … data, the CRC field (stuff count,
+    CRC-17/21 and its fixed stuff bits) is taken at its nominal length. With bit-rate switching
+    the bits from BRS to the CRC delimiter run at the data bitrate and are returned separately.
+    """
+    n = len(data)
+    code = len2dlc(n) if dlc is None else dlc
+    payload = [b for byte in data for b in _bits(byte, 8)]
+    if is_extended:
+        header = [0, *_bits(arbitration_id >> 18, 11), 1, 1, *_bits(arbitration_id & 0x3FFFF, 18)]
+    else:
+        header = [0, *_bits(arbitration_id, 11)]
+    if not is_fd:
+        control = [1 if is_remote else 0]  # RTR
+        control += [0, 0]  # (IDE, r0) for base frames, (r1, r0) for extended ones
+        control += _bits(code & 0xF, 4)
+        body = header + control + ([] if is_remote else payload)
+        crc = crc15_can(body)
+        stuffed = body + _bits(crc, 15)
+        total = len(stuffed) + _stuff_bits(stuffed) + _TAIL_BITS
+        return total, 0
+    # CAN FD: RRS, IDE(std only; ext has it above), FDF, res, BRS | ESI, DLC
+    arb = header + [0] + ([] if is_extended else [0]) + [1, 0, 1 if bitrate_switch else 0]
+    ctrl = [0, *_bits(code & 0xF, 4)]
+    dyn = arb + ctrl + payload
+    dyn_stuff = _stuff_bits(dyn)
+    crc_len = 17 if n <= 16 else 21
+    crc_field = 4 + crc_len + (4 + crc_len + 3) // 4 + 1  # stuff count, CRC, fixed stuff bits
+    arb_share = len(arb) / len(dyn)
+    arb_bits = len(arb) + round(dyn_stuff * arb_share) + _TAIL_BITS
+    data_bits = len(ctrl) + len(payload) + (dyn_stuff - round(dyn_stuff * arb_share)) + crc_field
+    if bitrate_switch:
+        return arb_bits, data_bits
+    return arb_bits + data_bits, 0
+
+
+class BusLoadMeter:
+    """Frames/s, error frames/s and bus load over a sliding window of frame times.
+
+    Fed with each frame's time (the device timestamp when the interface has one: adapters deliver
+    frames in USB batches, so host times would show bursts that the bus never had) and its
+    duration on the wire in seconds. Rates are taken over the frames inside the last ``window_s``:
+    ``(n − 1) / (t_last − t_first)``; the load is the mean frame duration times that rate.
+    """
+
+    def __init__(self, window_s: float = 1.0) -> None:
+        if window_s <= 0:
+            raise ValueError(f"bus-load window must be > 0 s, got {window_s}")
+        self.window_ns = int(window_s * 1e9)
+        self._frames: deque[tuple[int, float, bool]] = deque()
+        self._busy_s = 0.0
+        self._errors = 0
+
+    def reset(self) -> None:
+        """Forget the window (after a gap: times on either side are not comparable)."""
+        self._frames.clear()
+        self._busy_s = 0.0
+        self._errors = 0
+
+    def add(self, t_ns: int, duration_s: float, is_error: bool = False) -> None:
+        """Record one frame at ``t_ns`` that took ``duration_s`` of bus time."""
+        if self._frames and t_ns < self._frames[-1][0]:
+            # a clock that stepped back (adapter reset) starts a new window
+            self.reset()
+        self._frames.append((t_ns, duration_s, is_error))
+        self._busy_s += duration_s
+        self._errors += int(is_error)
+        cutoff = t_ns - self.window_ns
+        while self._frames and self._frames[0][0] <= cutoff:
+            _, d, e = self._frames.popleft()
+            self._busy_s -= d
+            self._errors -= int(e)
+
+    def rates(self) -> tuple[float, float, float]:
+        """``(frames_per_s, error_frames_per_s, busy_fraction)`` over the window (zeros if < 2 frames)."""
+        n = len(self._frames)
+        if n < 2:
+            return 0.0, 0.0, 0.0
+        span_s = (self._frames[-1][0] - self._frames[0][0]) / 1e9
+        if span_s <= 0:
+            return 0.0, 0.0, 0.0
+        rate = (n - 1) / span_s
+        error_rate = rate * self._errors / n
+        busy = max(self._busy_s, 0.0) / n * rate
+        return rate, error_rate, busy
+
+
+# --- SocketCAN error-frame classes (linux/can/error.h), also forwarded by socketcand -----------
+
+_CAN_ERR_CRTL = 0x004
+_CAN_ERR_BUSOFF = 0x040
+_CAN_ERR_RESTARTED = 0x100
+_CAN_ERR_CNT = 0x200  # data[6] = TX error counter, data[7] = RX error counter
+_CAN_ERR_CRTL_WARNING = 0x04 | 0x08
+_CAN_ERR_CRTL_PASSIVE = 0x10 | 0x20
+_CAN_ERR_CRTL_ACTIVE = 0x40
+
+
+def state_from_error_frame(msg: can.Message) -> BusState | None:
+    """Controller state that a SocketCAN-style error frame announces (None if it announces none)."""
+    cls = msg.arbitration_id
+    if cls & _CAN_ERR_BUSOFF:
+        return BusState.BUS_OFF
+    if cls & _CAN_ERR_RESTARTED:
+        return BusState.ACTIVE
+    if cls & _CAN_ERR_CRTL and len(msg.data) > 1:
+        status = msg.data[1]
+        if status & _CAN_ERR_CRTL_PASSIVE:
+            return BusState.PASSIVE
+        if status & _CAN_ERR_CRTL_WARNING:
+            return BusState.WARNING
+        if status & _CAN_ERR_CRTL_ACTIVE:
+            return BusState.ACTIVE
+    return None
+
+
+def error_counters_from_error_frame(msg: can.Message) -> tuple[int, int] | None:
+    """``(TEC, REC)`` reported by a SocketCAN-style error frame (None if it carries no counters)."""
+    if msg.arbitration_id & _CAN_ERR_CNT and len(msg.data) >= 8:
+        return int(msg.data[6]), int(msg.data[7])
+    return None
+
+
+def _state_from_python_can(bus: can.BusABC) -> BusState | None:
+    """``bus.state`` mapped to :class:`BusState`, or None where the interface does not report it."""
+    if type(bus).state is can.BusABC.state:
+        return None  # the base class answers ACTIVE unconditionally: that says nothing
+    try:
+        state = bus.state
+    except (can.CanError, OSError, NotImplementedError):
+        return None
+    return {
+        can.BusState.ACTIVE: BusState.ACTIVE,
+        can.BusState.PASSIVE: BusState.PASSIVE,
+        can.BusState.ERROR: BusState.BUS_OFF,
+    }.get(state)
+
+
+class _LostError(Exception):
+    """Internal: the interface is to be closed and reopened for ``reason``."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+# --- the session -------------------------------------------------------------------------------
+
+
+class CanBusSession:
+    """Reads one CAN bus on a thread; frames and events go to callbacks on that thread.
+
+    ``on_frame`` gets every frame (error frames too) as a :class:`CanFrame`; ``on_event`` gets
+    :data:`BusEvent` records (opened, lost, gap, state changes and, every ``stats_period_s``,
+    :class:`BusStats`). Callbacks run on the reader thread and must not block for long. If a
+    callback raises, the session stops, closes the bus and keeps the exception in
+    :attr:`failure` (the reader never swallows a consumer's error silently).
+
+    Recovery: a ``can.CanError`` or ``OSError`` from ``recv``, a bus-off state, or (when
+    ``silence_timeout_s`` is set) no frame for that long, closes the interface; it is reopened
+    after a back-off that doubles from ``backoff_initial_s`` to ``backoff_max_s`` and waits on the
+    stop event. The span is reported as one :class:`BusGap`.
+
+    ``bus_factory`` opens the interface (default :func:`open_bus`); tests pass a fault-injecting one.
+    """
+
+    def __init__(
+        self,
+        config: CanBusConfig,
+        on_frame: Callable[[CanFrame], None],
+        on_event: Callable[[BusEvent], None] | None = None,
+        *,
+        clock: Clock,
+        bus_factory: Callable[[CanBusConfig], can.BusABC] = open_bus,
+        recv_timeout_s: float = 0.05,
+        backoff_initial_s: float = 0.1,
+        backoff_max_s: float = 5.0,
+        silence_timeout_s: float | None = None,
+        stats_window_s: float = 1.0,
+        stats_period_s: float | None = 1.0,
+        state_poll_s: float = 0.5,
+    ) -> None:
+        if recv_timeout_s <= 0 or backoff_initial_s <= 0 or backoff_max_s < backoff_initial_s:
+            raise ConfigError(
+                f"{config.describe()}: need recv_timeout_s > 0 and 0 < backoff_initial_s <= backoff_max_s"
+            )
+        self.config = config
+        self._on_frame = on_frame
+        self._on_event = on_event
+        self._clock = clock
+        self._factory = bus_factory
+        self._recv_timeout_s = recv_timeout_s
+        self._backoff_initial_s = backoff_initial_s
+        self._backoff_max_s = backoff_max_s
+        self._silence_ns = None if silence_timeout_s is None else int(silence_timeout_s * 1e9)
+        self._stats_period_ns = None if stats_period_s is None else int(stats_period_s * 1e9)
+        self._state_poll_ns = int(state_poll_s * 1e9)
+        self._source = config.clock
+
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._bus: can.BusABC | None = None
+        self._lock = threading.Lock()
+        self._meter = BusLoadMeter(stats_window_s)
+        self._state = BusState.DISCONNECTED
+        self._frames_total = 0
+        self._errors_total = 0
+        self._gaps_total = 0
+        self._last_frame_ns: int | None = None
+        self._counters: tuple[int, int] | None = None
+        self._failure: BaseException | None = None
+        self.stopped = threading.Event()
+        """Set when the reader thread has finished (after ``stop()`` or a consumer failure)."""
+
+    # -- lifecycle --
+
+    def start(self) -> None:
+        """Open the interface and start reading.
+
+        Raises:
+            DeviceError: the first open fails (misconfiguration shows at once; failures after a
+                successful start are recovered instead).
+            RuntimeError: already started.
+        """
+        if self._thread is not None:
+            raise RuntimeError(f"{self.config.describe()}: session already started")
+        try:
+            self._open()
+        except _LostError as lost:
+            raise DeviceError(f"{self.config.describe()}: {lost.reason}") from None
+        self._thread = threading.Thread(target=self._run, name=f"can-{self.config.name}", daemon=False)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Stop reading, close the interface and join the thread.
+
+        Raises:
+            DeviceTimeoutError: the thread did not finish within ``timeout_s`` (a driver call that
+                cannot be interrupted); the message names the bus.
+        """
+        self._stop.set()
+        thread = self._thread
+        if thread is None:
+            self._close()
+            return
+        thread.join(timeout_s)
+        if thread.is_alive():
+            raise DeviceTimeoutError(f"{self.config.describe()}: reader thread did not stop within {timeout_s} s")
+
+    def __enter__(self) -> CanBusSession:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def failure(self) -> BaseException | None:
+        """The exception a callback raised, which stopped the session (None otherwise)."""
+        return self._failure
+
+    @property
+    def state(self) -> BusState:
+        with self._lock:
+            return self._state
+
+    @property
+    def bus(self) -> can.BusABC | None:
+        """The open python-can bus (None while disconnected); for sending, not for reading."""
+        return self._bus
+
+    def stats(self) -> BusStats:
+        """A snapshot of the statistics (thread-safe)."""
+        now = self._clock.now_ns()
+        with self._lock:
+            rate, err_rate, busy = self._meter.rates()
+            return BusStats(
+                host_ts_ns=now,
+                bus=self.config.name,
+                state=self._state,
+                frames_total=self._frames_total,
+                error_frames_total=self._errors_total,
+                gaps_total=self._gaps_total,
+                frames_per_s=rate,
+                error_frames_per_s=err_rate,
+                bus_load_pct=None if self.config.bitrate is None else 100.0 * busy,
+                window_s=self._meter.window_ns / 1e9,
+                tx_error_counter=None if self._counters is None else self._counters[0],
+                rx_error_counter=None if self._counters is None else self._counters[1],
+            )
+
+    # -- internals --
+
+    def _emit(self, event: BusEvent) -> None:
+        if self._on_event is not None:
+            self._on_event(event)
+
+    def _set_state(self, state: BusState, now_ns: int) -> None:
+        with self._lock:
+            previous, self._state = self._state, state
+        if previous is not state:
+            log.info("%s: state %s -> %s", self.config.describe(), previous.value, state.value)
+            self._emit(BusStateChanged(now_ns, self.config.name, previous, state))
+
+    def _open(self) -> None:
+        bus = self._factory(self.config)
+        self._bus = bus
+        now = self._clock.now_ns()
+        with self._lock:
+            self._meter.reset()
+        self._emit(
+            BusOpened(
+                host_ts_ns=now,
+                bus=self.config.name,
+                interface=self.config.interface,
+                channel=str(self.config.channel),
+                channel_info=str(getattr(bus, "channel_info", "")),
+                timestamp_source=self._source,
+            )
+        )
+        reported = _state_from_python_can(bus)
+        if reported is BusState.BUS_OFF:
+            self._close()
+            raise _LostError("controller still bus-off after reopening")
+        self._set_state(reported or BusState.UNKNOWN, now)
+
+    def _close(self) -> None:
+        bus, self._bus = self._bus, None
+        if bus is None:
+            return
+        try:
+            bus.shutdown()
+        except (can.CanError, OSError) as exc:
+            # a vanished adapter often fails its own shutdown; the handle is gone either way
+            log.warning("%s: error while closing: %s", self.config.describe(), exc)
+
+    def _run(self) -> None:
+        try:
+            self._read_loop()
+        except BaseException as exc:  # a consumer callback failed: stop, and keep it for the owner
+            log.exception("%s: reader stopped by an error", self.config.describe())
+            self._failure = exc
+        finally:
+            self._close()
+            with self._lock:
+                self._state = BusState.DISCONNECTED
+            self.stopped.set()
+
+    def _read_loop(self) -> None:
+        next_stats = next_state_poll = self._clock.now_ns()
+        last_rx = next_stats
+        while not self._stop.is_set():
+            bus = self._bus
+            if bus is None:
+                return
+            try:
+                try:
+                    msg = bus.recv(timeout=self._recv_timeout_s)
+                except (can.CanError, OSError) as exc:
+                    raise _LostError(f"receive failed: {exc}") from exc
+                now = self._clock.now_ns()
+                if msg is not None:
+                    last_rx = now
+                    self._deliver(msg, now)
+                elif self._silence_ns is not None and now - last_rx > self._silence_ns:
+                    raise _LostError(f"no frame for {self._silence_ns / 1e9:.1f} s")
+                if now >= next_state_poll:
+                    next_state_poll = now + self._state_poll_ns
+                    reported = _state_from_python_can(bus)
+                    if reported is not None:
+                        self._set_state(reported, now)
+                if self.state is BusState.BUS_OFF:
+                    raise _LostError("controller is bus-off")
+            except _LostError as lost:
+                if not self._recover(lost.reason):
+                    return
+                last_rx = next_state_poll = self._clock.now_ns()
+                continue
+            if self._stats_period_ns is not None and now >= next_stats:
+                next_stats = now + self._stats_period_ns
+                self._emit(self.stats())
+
+    def _deliver(self, msg: can.Message, now_ns: int) -> None:
+        flags = CanFrameFlag.NONE
+        if msg.is_error_frame:
+            flags |= CanFrameFlag.ERROR_FRAME
+        if msg.is_remote_frame:
+            flags |= CanFrameFlag.REMOTE
+        if msg.bitrate_switch:
+            flags |= CanFrameFlag.BITRATE_SWITCH
+        if msg.error_state_indicator:
+            flags |= CanFrameFlag.ERROR_STATE_INDICATOR
+        if not msg.is_rx:
+            flags |= CanFrameFlag.TX_ECHO
+        data = bytes(msg.data or b"")
+        dlc = len2dlc(len(data)) if msg.is_fd else int(msg.dlc)
+        device_ns = round(msg.timestamp * 1e9) if msg.timestamp and msg.timestamp > 0 else None
+        frame = CanFrame(
+            device_ts_ns=device_ns,
+            host_ts_ns=now_ns,
+            arbitration_id=int(msg.arbitration_id),
+            is_extended=bool(msg.is_extended_id),
+            is_fd=bool(msg.is_fd),
+            dlc=dlc,
+            data=data,
+            flags=flags,
+            timestamp_source=self._source,
+            channel=str(self.config.channel),
+        )
+        duration_s = 0.0
+        if not msg.is_error_frame and self.config.bitrate is not None:
+            nominal, fast = frame_bit_times(
+                frame.arbitration_id,
+                frame.is_extended,
+                data,
+                dlc=dlc,
+                is_remote=bool(msg.is_remote_frame),
+                is_fd=frame.is_fd,
+                bitrate_switch=bool(msg.bitrate_switch),
+            )
+            duration_s = nominal / self.config.bitrate
+            if fast:
+                duration_s += fast / (self.config.data_bitrate or self.config.bitrate)
+        with self._lock:
+            self._frames_total += 1
+            self._errors_total += int(bool(msg.is_error_frame))
+            self._last_frame_ns = now_ns
+            # error reports carry no bus time of their own (the destroyed frame is unknown)
+            self._meter.add(device_ns if device_ns is not None else now_ns, duration_s, bool(msg.is_error_frame))
+        if msg.is_error_frame:
+            counters = error_counters_from_error_frame(msg)
+            if counters is not None:
+                with self._lock:
+                    self._counters = counters
+            announced = state_from_error_frame(msg)
+            if announced is not None:
+                self._set_state(announced, now_ns)
+        self._on_frame(frame)
+
+    def _recover(self, reason: str) -> bool:
+        """Close, back off and reopen until open or stopped; report the gap. False when stopped."""
+        start = self._clock.now_ns()
+        log.warning("%s: lost (%s); reopening", self.config.describe(), reason)
+        self._close()
+        with self._lock:
+            last_frame = self._last_frame_ns
+        self._emit(BusLost(start, self.config.name, reason))
+        self._set_state(BusState.DISCONNECTED, start)
+        delay = self._backoff_initial_s
+        attempts = 0
+        recovered = False
+        while not self._stop.wait(delay):
+            attempts += 1
+            try:
+                self._open()
+            except (DeviceError, can.CanError, OSError, _LostError) as exc:
+                log.info("%s: reopen attempt %d failed: %s", self.config.describe(), attempts, exc)
+                delay = min(2.0 * delay, self._backoff_max_s)
+                continue
+            recovered = True
+            break
+        end = self._clock.now_ns()
+        with self._lock:
+            self._gaps_total += 1
+        self._emit(BusGap(start, end, self.config.name, reason, attempts, recovered, last_frame))
+        return recovered

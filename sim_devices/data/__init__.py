@@ -1,0 +1,1 @@
+"""Package data of the simulated devices (the simulated car's DBC)."""

@@ -1,0 +1,932 @@
+"""The simulated VSC (ESC) ECU: the car's CAN traffic, with the errors real sensors and estimators have.
+
+From a :class:`~sim_devices.vehicle.truth.GroundTruth` it produces the messages of
+``sim_devices/data/vsc_sim.dbc`` at their DBC cycle times (each message with its own phase and
+a little transmit jitter), encoded with cantools, with rolling counters and AUTOSAR CRC-8H2F
+checksums (``drivers.can.checks``, algorithm ``vw_mqb_crc8``):
+
+- ``ESC_SensorCluster`` (10 ms): yaw rate, lateral and longitudinal acceleration as a MEMS
+  cluster gives them: first-order sensing bandwidth, output latency, constant bias, white noise,
+  quantisation to the DBC resolution, quality bits set while the cluster warms up. Lateral
+  acceleration is the body-fixed measurement (``ay_meas``: it contains the roll component of
+  gravity) at the cluster's mounting point (plus ṙ·x).
+- ``SAS_Steering`` (10 ms): steering-wheel angle with a zero offset and 0.1° resolution,
+  **positive clockwise** (opposite to ISO 8855, as on many cars; the role file sets ``invert``),
+  and its rate as magnitude + sign bit.
+- ``ESC_WheelSpeeds`` (20 ms): from a 48-tooth encoder per wheel: tooth edges (with per-tooth
+  pitch errors) are found from the integrated wheel rotation and timed with a 1 µs timer; the
+  speed is the number of pitches between the first and last edge in the measurement window over
+  their time, with the ECU's nominal rolling radius (the true one differs per tyre).
+- ``ESC_BrakePressure`` (20 ms): the ground truth has no brake model, so the master-cylinder
+  pressure follows the deceleration beyond coasting (≈ 100 bar/g) and the wheel pressures the
+  proportioning valve, plus the controller's own intervention pressure (open loop: the
+  simulated controller does not act on the simulated car).
+- ``VSC_Status`` (20 ms) and ``VSC_Diag`` (100 ms, multiplexed): the controller's state and its
+  own sideslip estimate, from :class:`SideslipEstimator` fed with the values the ECU sends.
+
+:func:`frames` is the pure, offline form (``(t_s, can.Message)`` in time order, for writing
+sessions fast); :class:`VscEcu` sends the same frames on a python-can bus in real or scaled time
+on its own thread; :class:`SimulatedVscBus` gives that ECU its own virtual channel and, for other
+processes, a socketcand server on 127.0.0.1 (``rig can sim-ecu`` runs one). Everything is
+deterministic given ``VscEcuConfig.seed``.
+"""
+
+from __future__ import annotations
+
+import heapq
+import importlib.resources
+import logging
+import math
+import threading
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import can
+import numpy as np
+import numpy.typing as npt
+from cantools.database.can import Database
+from cantools.database.can import Message as DbcMessage
+from scipy.signal import lfilter
+
+from drivers.can.checks import ChecksumAlgorithm, get_checksum
+from drivers.can.dbc import load_dbc
+from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
+from sim_devices.vehicle.truth import GroundTruth
+from vsccore.clock import Clock
+from vsccore.errors import SimulationError
+
+__all__ = [
+    "DEFAULT_CHECKSUMS",
+    "EcuOutputs",
+    "EstimatorParams",
+    "EstimatorStep",
+    "InertialSensorErrors",
+    "MessageSeries",
+    "SideslipEstimator",
+    "SimulatedVscBus",
+    "VscEcu",
+    "VscEcuConfig",
+    "frames",
+    "simulate_ecu",
+    "vsc_sim_dbc_path",
+]
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+
+G0 = 9.80665
+_DEG = math.pi / 180.0
+_KMH = 1.0 / 3.6
+_BAR = 1e5
+
+
+def vsc_sim_dbc_path() -> Path:
+    """Path of the simulated car's DBC shipped as package data."""
+    return Path(str(importlib.resources.files("sim_devices").joinpath("data/vsc_sim.dbc")))
+
+
+DEFAULT_CHECKSUMS: Mapping[str, str] = {
+    "SAS_Steering": "vw_mqb_crc8",
+    "ESC_SensorCluster": "vw_mqb_crc8",
+    "ESC_BrakePressure": "vw_mqb_crc8",
+    "VSC_Status": "vw_mqb_crc8",
+}
+"""Checksum algorithm (``drivers.can.checks`` name) of each protected message of the sim DBC."""
+
+
+# --- configuration -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class InertialSensorErrors:
+    """Error model of one inertial channel (SI units of the channel: rad/s or m/s²)."""
+
+    bias: float
+    """Constant offset added to the output."""
+    noise_std: float
+    """Standard deviation of white noise on each output sample."""
+    bandwidth_hz: float = 20.0
+    """Corner frequency of the first-order sensing/anti-alias filter."""
+    latency_s: float = 0.010
+    """Delay from sensing to the CAN output."""
+
+
+@dataclass(frozen=True, slots=True)
+class EstimatorParams:
+    """The ECU's own vehicle model and estimator tuning (its "calibration", not the true car)."""
+
+    mass_kg: float = 1550.0
+    yaw_inertia_kgm2: float = 2600.0
+    cg_to_front_m: float = 1.20
+    cg_to_rear_m: float = 1.60
+    cornering_stiffness_front_axle_n_per_rad: float = 120_000.0
+    cornering_stiffness_rear_axle_n_per_rad: float = 140_000.0
+    steering_ratio: float = 16.0
+    roll_gradient_rad_per_mps2: float = 0.0070
+    """Roll angle per m/s² of lateral acceleration assumed to remove gravity's roll component."""
+    mu: float = 1.0
+    """Friction assumed to limit the reference yaw rate."""
+    observer_pole_rad_s: float = 15.0
+    """Both poles of the single-track observer's error dynamics at −this."""
+    tau_linear_s: float = 0.3
+    """Complementary-filter time constant in the linear range (model trusted)."""
+    tau_limit_s: float = 4.0
+    """Time constant near the limit (kinematic integration trusted: it drifts)."""
+    ay_linear_mps2: float = 4.0
+    ay_limit_mps2: float = 7.0
+    min_speed_mps: float = 3.0
+    """Below this the estimate is reset to 0 and flagged invalid."""
+    standstill_mps: float = 0.2
+    offset_learn_tau_s: float = 2.0
+    """Time constant for learning yaw-rate and lateral-acceleration offsets at standstill."""
+    intervention_yaw_error_rad_s: float = 4.0 * _DEG
+    intervention_beta_rad: float = 5.0 * _DEG
+    intervention_pressure_bar: float = 25.0
+
+    @property
+    def wheelbase_m(self) -> float:
+        return self.cg_to_front_m + self.cg_to_rear_m
+
+
+@dataclass(frozen=True, slots=True)
+class VscEcuConfig:
+    """Errors of the simulated car's sensors and the ECU's settings. Deterministic given ``seed``."""
+
+    seed: int = 0
+    yaw_rate: InertialSensorErrors = InertialSensorErrors(bias=0.25 * _DEG, noise_std=0.08 * _DEG)
+    lat_accel: InertialSensorErrors = InertialSensorErrors(bias=0.05, noise_std=0.03, bandwidth_hz=15.0)
+    long_accel: InertialSensorErrors = InertialSensorErrors(bias=-0.04, noise_std=0.03, bandwidth_hz=15.0)
+    cluster_x_m: float = 0.0
+    """Sensor-cluster position ahead of the CG (its lateral acceleration includes ṙ·x)."""
+    sensor_warmup_s: float = 0.3
+    """Quality bits say "substitute value" (and 0 is sent) until then."""
+    swa_offset_rad: float = 0.8 * _DEG
+    """Steering-angle sensor zero error (ISO sign: added to the true angle)."""
+    wheel_teeth: int = 48
+    wheel_timer_hz: float = 1e6
+    tooth_pitch_error_std: float = 0.003
+    """Per-tooth angular position error, as a fraction of the tooth pitch (fixed per wheel)."""
+    wheel_window_s: float = 0.020
+    """Measurement window of the edge-timing speed measurement (the message period)."""
+    wheel_timeout_s: float = 0.2
+    """No edge for this long, or edges further apart: speed reported 0 (the lowest measurable speed
+    is one tooth pitch per timeout, 0.2 m/s here)."""
+    wheel_radius_m: float = 0.31
+    """Rolling radius the ECU assumes."""
+    tyre_radius_error: tuple[float, float, float, float] = (0.003, -0.002, 0.0015, -0.001)
+    """True rolling radius relative to the assumed one, minus 1, FL FR RL RR."""
+    brake_gain_bar_per_mps2: float = 10.2
+    coast_decel_mps2: float = 0.5
+    rear_pressure_ratio: float = 0.85
+    pressure_noise_bar: float = 0.3
+    transmit_jitter_s: float = 50e-6
+    """Standard deviation of each frame's transmit time around its schedule."""
+    phases_s: Mapping[str, float] = field(
+        default_factory=lambda: {
+            "ESC_SensorCluster": 0.0005,
+            "SAS_Steering": 0.0031,
+            "ESC_WheelSpeeds": 0.0052,
+            "ESC_BrakePressure": 0.0077,
+            "VSC_Status": 0.0094,
+            "VSC_Diag": 0.0413,
+        }
+    )
+    """Offset of each message's first transmission within its period."""
+    checksums: Mapping[str, str] = field(default_factory=lambda: dict(DEFAULT_CHECKSUMS))
+    estimator: EstimatorParams = EstimatorParams()
+
+    def __post_init__(self) -> None:
+        if self.wheel_teeth < 4:
+            raise SimulationError(f"VscEcuConfig.wheel_teeth: need at least 4, got {self.wheel_teeth}")
+        if self.wheel_window_s <= 0 or self.wheel_timeout_s < self.wheel_window_s:
+            raise SimulationError("VscEcuConfig: need 0 < wheel_window_s <= wheel_timeout_s")
+        for name, errors in (
+            ("yaw_rate", self.yaw_rate),
+            ("lat_accel", self.lat_accel),
+            ("long_accel", self.long_accel),
+        ):
+            if errors.noise_std < 0 or errors.bandwidth_hz <= 0 or errors.latency_s < 0:
+                raise SimulationError(f"VscEcuConfig.{name}: need noise_std >= 0, bandwidth_hz > 0, latency_s >= 0")
+
+
+# --- the sideslip estimator --------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class EstimatorStep:
+    """Output of one estimator task cycle (SI, ISO 8855)."""
+
+    beta: float
+    """Blended sideslip estimate (rad)."""
+    valid: bool
+    beta_kinematic: float
+    """Pure integration of β̇ = a_y/v − r since the last reset (rad): shows the drift."""
+    beta_model: float
+    """Single-track observer's sideslip (rad)."""
+    tau_s: float
+    yaw_rate_model: float
+    """Observer's yaw rate (rad/s)."""
+    yaw_rate_reference: float
+    """Driver's intended yaw rate from the steady-state single-track gain (rad/s)."""
+    yaw_rate_offset: float
+    lat_accel_offset: float
+    roll_estimate: float
+    speed: float
+    active: bool
+    intervention: tuple[bool, bool, bool, bool]
+    """Wheels braked by the controller, FL FR RL RR."""
+
+
+class SideslipEstimator:
+    """A simple, realistic VSC sideslip estimator, one step per 10 ms task cycle.
+
+    - Offsets: the yaw-rate and lateral-acceleration offsets are learnt while the car stands
+      still (as ECUs do); before that the raw sensor bias goes straight into the integration.
+    - Kinematics: β̇ = (a_y − a_x·β)/v − r, with a_y cleared of gravity's roll component by a
+      nominal roll gradient. Exact in principle, but it integrates every sensor error.
+    - Model: a linear single-track (bicycle) observer driven by the road-wheel angle and
+      corrected by the measured yaw rate (both error poles at −``observer_pole_rad_s``). Right in
+      the linear range, wrong once the tyres saturate (it underestimates |β|).
+    - Blend: β̂̇ = β̇_kin + (β_model − β̂)/τ, with τ short in the linear range and long near the
+      limit (where the model is not trusted), so the estimate is good in the linear range and
+      drifts near the limit, like real ones.
+    """
+
+    def __init__(self, params: EstimatorParams, dt_s: float) -> None:
+        if dt_s <= 0:
+            raise SimulationError(f"estimator step must be > 0 s, got {dt_s}")
+        self.p = params
+        self.dt = dt_s
+        self.beta = 0.0
+        self.beta_kin = 0.0
+        self.x_beta = 0.0
+        self.x_r = 0.0
+        self.r_offset = 0.0
+        self.ay_offset = 0.0
+        self._active = False
+
+    def _matrices(self, v: float) -> tuple[float, float, float, float, float, float]:
+        p = self.p
+        cf = p.cornering_stiffness_front_axle_n_per_rad
+        cr = p.cornering_stiffness_rear_axle_n_per_rad
+        m, iz, lf, lr = p.mass_kg, p.yaw_inertia_kgm2, p.cg_to_front_m, p.cg_to_rear_m
+        a11 = -(cf + cr) / (m * v)
+        a12 = (cr * lr - cf * lf) / (m * v * v) - 1.0
+        a21 = (cr * lr - cf * lf) / iz
+        a22 = -(cf * lf * lf + cr * lr * lr) / (iz * v)
+        b1 = cf / (m * v)
+        b2 = cf * lf / iz
+        return a11, a12, a21, a22, b1, b2
+
+    def step(self, yaw_rate: float, lat_accel: float, long_accel: float, swa: float, speed: float) -> EstimatorStep:
+        """Advance one cycle with the measured yaw rate (rad/s), accelerations (m/s²), steering-wheel
+        angle (rad, ISO sign) and reference speed (m/s)."""
+        p = self.p
+        dt = self.dt
+        v = speed
+        if v < p.standstill_mps:
+            k = dt / (p.offset_learn_tau_s + dt)
+            self.r_offset += k * (yaw_rate - self.r_offset)
+            self.ay_offset += k * (lat_accel - self.ay_offset)
+        r = yaw_rate - self.r_offset
+        ay_m = lat_accel - self.ay_offset
+        roll = p.roll_gradient_rad_per_mps2 * ay_m / (1.0 + G0 * p.roll_gradient_rad_per_mps2)
+        ay = ay_m - G0 * math.sin(roll)
+        delta = swa / p.steering_ratio
+        wheelbase = p.wheelbase_m
+        cf = p.cornering_stiffness_front_axle_n_per_rad
+        cr = p.cornering_stiffness_rear_axle_n_per_rad
+        k_us = p.mass_kg / wheelbase * (p.cg_to_rear_m / cf - p.cg_to_front_m / cr)
+        if v < p.min_speed_mps:
+            self.beta = self.beta_kin = self.x_beta = 0.0
+            self.x_r = r
+            self._active = False
+            return EstimatorStep(
+                0.0,
+                False,
+                0.0,
+                0.0,
+                p.tau_linear_s,
+                r,
+                0.0,
+                self.r_offset,
+                self.ay_offset,
+                roll,
+                v,
+                False,
+                (False, False, False, False),
+            )
+        r_ref = v * delta / (wheelbase + k_us * v * v)
+        r_max = p.mu * G0 / v
+        r_ref = max(-r_max, min(r_max, r_ref))
+
+        # single-track observer, error poles placed at -w0 (double)
+        a11, a12, a21, a22, b1, b2 = self._matrices(v)
+        w0 = p.observer_pole_rad_s
+        l2 = a11 + a22 + 2.0 * w0
+        l1 = a12 - (a11 * (a22 - l2) - w0 * w0) / a21 if abs(a21) > 1e-6 else 0.0
+        innovation = r - self.x_r
+        d_beta = a11 * self.x_beta + a12 * self.x_r + b1 * delta + l1 * innovation
+        d_r = a21 * self.x_beta + a22 * self.x_r + b2 * delta + l2 * innovation
+        self.x_beta += dt * d_beta
+        self.x_r += dt * d_r
+
+        # kinematic rate, and the blend whose time constant grows towards the limit
+        beta_dot_kin = (ay - long_accel * self.beta) / v - r
+        share = min(max((abs(ay) - p.ay_linear_mps2) / (p.ay_limit_mps2 - p.ay_linear_mps2), 0.0), 1.0)
+        tau = p.tau_linear_s + share * (p.tau_limit_s - p.tau_linear_s)
+        self.beta += dt * (beta_dot_kin + (self.x_beta - self.beta) / tau)
+        self.beta_kin += dt * ((ay - long_accel * self.beta_kin) / v - r)
+        self.beta_kin = max(-3.0, min(3.0, self.beta_kin))
+
+        # controller: yaw-rate error with hysteresis, brake one wheel
+        error = r - r_ref
+        threshold = p.intervention_yaw_error_rad_s + 0.1 * abs(r_ref)
+        if self._active:
+            self._active = abs(error) > 0.7 * threshold or abs(self.beta) > 0.7 * p.intervention_beta_rad
+        else:
+            self._active = v > 5.0 and (abs(error) > threshold or abs(self.beta) > p.intervention_beta_rad)
+        wheels = (False, False, False, False)
+        if self._active:
+            turning_left = (r_ref if abs(r_ref) > 1e-3 else r) >= 0.0
+            oversteer = abs(r) > abs(r_ref)
+            if oversteer:
+                wheels = (False, True, False, False) if turning_left else (True, False, False, False)
+            else:
+                wheels = (False, False, True, False) if turning_left else (False, False, False, True)
+        return EstimatorStep(
+            beta=self.beta,
+            valid=True,
+            beta_kinematic=self.beta_kin,
+            beta_model=self.x_beta,
+            tau_s=tau,
+            yaw_rate_model=self.x_r,
+            yaw_rate_reference=r_ref,
+            yaw_rate_offset=self.r_offset,
+            lat_accel_offset=self.ay_offset,
+            roll_estimate=roll,
+            speed=v,
+            active=self._active,
+            intervention=wheels,
+        )
+
+
+# --- sensor models -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class MessageSeries:
+    """Transmit times (s from the truth's start) and DBC physical values of one message."""
+
+    name: str
+    t: FloatArray
+    signals: Mapping[str, FloatArray]
+
+
+@dataclass(frozen=True, slots=True)
+class EcuOutputs:
+    """Everything the ECU sends, as arrays (before encoding), plus the estimator's inner states."""
+
+    messages: Mapping[str, MessageSeries]
+    estimator_t: FloatArray
+    estimator: Mapping[str, FloatArray]
+    """``beta``, ``beta_kinematic``, ``beta_model``, ``tau_s``, ``valid``, ``active`` at ``estimator_t`` (SI)."""
+
+
+def _quantise(x: FloatArray, lsb: float, lo: float, hi: float) -> FloatArray:
+    return np.asarray(np.clip(np.round(x / lsb) * lsb, lo, hi), dtype=np.float64)
+
+
+def _lowpass(x: FloatArray, dt: float, bandwidth_hz: float) -> FloatArray:
+    """First-order low-pass (exact discretisation), started at the first value."""
+    a = math.exp(-2.0 * math.pi * bandwidth_hz * dt)
+    y = lfilter([1.0 - a], [1.0, -a], x - x[0]) + x[0]
+    return np.asarray(y, dtype=np.float64)
+
+
+def _schedule(period: float, phase: float, t_end: float, jitter: float, rng: np.random.Generator) -> FloatArray:
+    n = math.floor((t_end - phase) / period) + 1
+    if n <= 0:
+        return np.zeros(0)
+    t = phase + period * np.arange(n, dtype=np.float64)
+    if jitter > 0:
+        t = t + np.clip(rng.normal(0.0, jitter, n), -0.2 * period, 0.2 * period)
+    t = np.maximum(t, 0.0)
+    return np.asarray(np.maximum.accumulate(t), dtype=np.float64)
+
+
+def _signal_limits(message: DbcMessage, name: str) -> tuple[float, float, float]:
+    sig = message.get_signal_by_name(name)
+    lsb = float(sig.scale)
+    lo = sig.minimum if sig.minimum is not None else -math.inf
+    hi = sig.maximum if sig.maximum is not None else math.inf
+    return lsb, float(lo), float(hi)
+
+
+def _wheel_edges(t: FloatArray, angle: FloatArray, teeth: int, pitch_errors: FloatArray, timer_hz: float) -> FloatArray:
+    """Times of the encoder's tooth edges from the wheel's cumulative rotation angle (rad)."""
+    pitch = 2.0 * math.pi / teeth
+    angle = np.maximum.accumulate(angle)
+    k0 = math.ceil(angle[0] / pitch)
+    k1 = math.floor(angle[-1] / pitch)
+    if k1 < k0:
+        return np.zeros(0)
+    k = np.arange(k0, k1 + 1)
+    edge_angles = (k + pitch_errors[np.mod(k, teeth)]) * pitch
+    inside = (edge_angles >= angle[0]) & (edge_angles <= angle[-1])
+    edges = np.interp(edge_angles[inside], angle, t)
+    edges = np.round(edges * timer_hz) / timer_hz
+    return np.asarray(np.maximum.accumulate(edges), dtype=np.float64)
+
+
+def _wheel_speed_measurement(edges: FloatArray, t_meas: FloatArray, cfg: VscEcuConfig) -> FloatArray:
+    """Edge-timing speed (m/s, with the ECU's nominal radius) at each measurement instant."""
+    arc = 2.0 * math.pi * cfg.wheel_radius_m / cfg.wheel_teeth
+    out = np.zeros_like(t_meas)
+    if edges.size < 2:
+        return out
+    last = np.searchsorted(edges, t_meas, side="right") - 1  # last edge at or before t
+    first = np.searchsorted(edges, t_meas - cfg.wheel_window_s, side="right")  # first edge inside the window
+    for i, (lo, hi) in enumerate(zip(first, last, strict=True)):
+        if hi < 1 or t_meas[i] - edges[hi] > cfg.wheel_timeout_s:
+            continue
+        lo = min(lo, hi - 1)  # fewer than two edges in the window: use the last two
+        span = edges[hi] - edges[lo]
+        if 0 < span <= cfg.wheel_timeout_s:
+            out[i] = (hi - lo) * arc / span
+    return out
+
+
+def simulate_ecu(truth: GroundTruth, config: VscEcuConfig | None = None, db: Database | None = None) -> EcuOutputs:
+    """Compute every message's transmit times and signal values (DBC physical units) from ``truth``.
+
+    Raises:
+        SimulationError: the truth record is too short or not uniformly sampled.
+    """
+    cfg = config or VscEcuConfig()
+    db = db or load_dbc(vsc_sim_dbc_path())
+    n = len(truth)
+    if n < 3:
+        raise SimulationError(f"simulated VSC ECU: ground truth has {n} samples, need at least 3")
+    t = truth.t
+    dt = truth.dt
+    if dt <= 0:
+        raise SimulationError("simulated VSC ECU: ground-truth time vector is not increasing")
+    t_end = float(t[-1])
+    streams = np.random.SeedSequence(cfg.seed).spawn(16)
+    rng = [np.random.default_rng(s) for s in streams]
+
+    def msg(name: str) -> DbcMessage:
+        return db.get_message_by_name(name)
+
+    def period(name: str) -> float:
+        cycle = msg(name).cycle_time
+        if not cycle:
+            raise SimulationError(f"simulated VSC ECU: message {name} has no GenMsgCycleTime in the DBC")
+        return float(cycle) / 1000.0
+
+    def times(name: str, i: int) -> FloatArray:
+        return _schedule(period(name), cfg.phases_s.get(name, 0.0), t_end, cfg.transmit_jitter_s, rng[i])
+
+    def sample(x: FloatArray, at: FloatArray) -> FloatArray:
+        return np.asarray(np.interp(at, t, x), dtype=np.float64)
+
+    series: dict[str, MessageSeries] = {}
+
+    # sensor cluster
+    m_sc = msg("ESC_SensorCluster")
+    t_sc = times("ESC_SensorCluster", 0)
+    yaw_acc = np.gradient(truth.yaw_rate, t)
+    channels = {
+        "ESC_YawRate": (truth.yaw_rate, cfg.yaw_rate, 1.0 / _DEG, 3),
+        "ESC_LatAccel": (truth.ay_meas + yaw_acc * cfg.cluster_x_m, cfg.lat_accel, 1.0 / G0, 4),
+        "ESC_LongAccel": (truth.ax_meas, cfg.long_accel, 1.0, 5),
+    }
+    warm = t_sc >= cfg.sensor_warmup_s
+    sc: dict[str, FloatArray] = {}
+    for name, (x, err, to_dbc, k) in channels.items():
+        filtered = _lowpass(np.asarray(x, dtype=np.float64), dt, err.bandwidth_hz)
+        value = sample(filtered, t_sc - err.latency_s) + err.bias + rng[k].normal(0.0, err.noise_std, t_sc.size)
+        lsb, lo, hi = _signal_limits(m_sc, name)
+        sc[name] = np.where(warm, _quantise(value * to_dbc, lsb, lo, hi), 0.0)
+    for q in ("ESC_YawRate_QBit", "ESC_LatAccel_QBit", "ESC_LongAccel_QBit"):
+        sc[q] = np.where(warm, 0.0, 1.0)
+    series["ESC_SensorCluster"] = MessageSeries("ESC_SensorCluster", t_sc, sc)
+
+    # steering-angle sensor: clockwise positive on the wire
+    m_sas = msg("SAS_Steering")
+    t_sas = times("SAS_Steering", 1)
+    swa_rate = np.gradient(truth.swa, t)
+    lsb, lo, hi = _signal_limits(m_sas, "SAS_Angle")
+    swa_cw_deg = -(sample(truth.swa, t_sas) + cfg.swa_offset_rad) / _DEG
+    rate_cw_dps = -sample(_lowpass(swa_rate, dt, 10.0), t_sas) / _DEG
+    rlsb, rlo, rhi = _signal_limits(m_sas, "SAS_Rate")
+    series["SAS_Steering"] = MessageSeries(
+        "SAS_Steering",
+        t_sas,
+        {
+            "SAS_Angle": _quantise(swa_cw_deg, lsb, lo, hi),
+            "SAS_Rate": _quantise(np.abs(rate_cw_dps), rlsb, rlo, rhi),
+            "SAS_Rate_Sign": (rate_cw_dps < 0).astype(np.float64),
+            "SAS_Angle_QBit": np.zeros(t_sas.size),
+            "SAS_Calibrated": np.ones(t_sas.size),
+        },
+    )
+
+    # wheel speeds from tooth edges
+    m_ws = msg("ESC_WheelSpeeds")
+    t_ws = times("ESC_WheelSpeeds", 2)
+    ws: dict[str, FloatArray] = {}
+    speeds_mps = np.zeros((4, t_ws.size))
+    for w, wheel in enumerate(("FL", "FR", "RL", "RR")):
+        r_true = cfg.wheel_radius_m * (1.0 + cfg.tyre_radius_error[w])
+        omega = np.abs(truth.wheel_speed[:, w]) / r_true
+        angle = np.concatenate(([0.0], np.cumsum(0.5 * (omega[1:] + omega[:-1]) * np.diff(t))))
+        angle += rng[6 + w].uniform(0.0, 2.0 * math.pi)  # where the first tooth happens to sit
+        pitch_errors = np.clip(rng[10 + w].normal(0.0, cfg.tooth_pitch_error_std, cfg.wheel_teeth), -0.45, 0.45)
+        edges = _wheel_edges(t, angle, cfg.wheel_teeth, pitch_errors, cfg.wheel_timer_hz)
+        speeds_mps[w] = _wheel_speed_measurement(edges, t_ws, cfg)
+        lsb, lo, hi = _signal_limits(m_ws, f"ESC_WheelSpeed_{wheel}")
+        ws[f"ESC_WheelSpeed_{wheel}"] = _quantise(speeds_mps[w] / _KMH, lsb, lo, hi)
+    series["ESC_WheelSpeeds"] = MessageSeries("ESC_WheelSpeeds", t_ws, ws)
+
+    # estimator task: one cycle per sensor-cluster frame, on the values the ECU sends
+    est = SideslipEstimator(cfg.estimator, period("ESC_SensorCluster"))
+    yaw_si = sc["ESC_YawRate"] * _DEG
+    ay_si = sc["ESC_LatAccel"] * G0
+    ax_si = sc["ESC_LongAccel"]
+    swa_iso = -series["SAS_Steering"].signals["SAS_Angle"] * _DEG
+    i_sas = np.searchsorted(t_sas, t_sc, side="right") - 1
+    i_ws = np.searchsorted(t_ws, t_sc, side="right") - 1
+    mean_kmh = np.mean(np.vstack([ws[f"ESC_WheelSpeed_{w}"] for w in ("FL", "FR", "RL", "RR")]), axis=0)
+    v_ref = np.where(i_ws >= 0, mean_kmh[np.maximum(i_ws, 0)] * _KMH, 0.0)
+    steps: list[EstimatorStep] = []
+    for j in range(t_sc.size):
+        if not warm[j]:
+            steps.append(_invalid_step())  # quality bits set: the ECU does not run on substitutes
+            continue
+        swa_j = float(swa_iso[i_sas[j]]) if i_sas[j] >= 0 else 0.0
+        steps.append(est.step(float(yaw_si[j]), float(ay_si[j]), float(ax_si[j]), swa_j, float(v_ref[j])))
+    est_arrays = {
+        "beta": np.array([s.beta for s in steps]),
+        "beta_kinematic": np.array([s.beta_kinematic for s in steps]),
+        "beta_model": np.array([s.beta_model for s in steps]),
+        "tau_s": np.array([s.tau_s for s in steps]),
+        "valid": np.array([float(s.valid) for s in steps]),
+        "active": np.array([float(s.active) for s in steps]),
+        "yaw_rate_model": np.array([s.yaw_rate_model for s in steps]),
+        "yaw_rate_reference": np.array([s.yaw_rate_reference for s in steps]),
+        "yaw_rate_offset": np.array([s.yaw_rate_offset for s in steps]),
+        "lat_accel_offset": np.array([s.lat_accel_offset for s in steps]),
+        "roll_estimate": np.array([s.roll_estimate for s in steps]),
+        "speed": np.array([s.speed for s in steps]),
+    }
+    interventions = np.array([s.intervention for s in steps], dtype=bool).reshape(-1, 4)
+
+    def latest(at: FloatArray) -> npt.NDArray[np.int64]:
+        return np.asarray(np.searchsorted(t_sc, at, side="right") - 1, dtype=np.int64)
+
+    # brake pressures
+    m_bp = msg("ESC_BrakePressure")
+    t_bp = times("ESC_BrakePressure", 15)
+    j_bp = latest(t_bp)
+    ok_bp = j_bp >= 0
+    j_bp = np.maximum(j_bp, 0)
+    decel = -sample(truth.ax, t_bp)
+    p_mc = cfg.brake_gain_bar_per_mps2 * np.maximum(decel - cfg.coast_decel_mps2, 0.0)
+    pr = rng[14].normal(0.0, cfg.pressure_noise_bar, (5, t_bp.size))
+    bp: dict[str, FloatArray] = {}
+    lsb, lo, hi = _signal_limits(m_bp, "ESC_MC_Pressure")
+    bp["ESC_MC_Pressure"] = _quantise(np.maximum(p_mc + pr[0], 0.0), lsb, lo, hi)
+    for w, wheel in enumerate(("FL", "FR", "RL", "RR")):
+        base = p_mc if w < 2 else cfg.rear_pressure_ratio * p_mc
+        extra = np.where(ok_bp & interventions[j_bp, w], cfg.estimator.intervention_pressure_bar, 0.0)
+        lsb, lo, hi = _signal_limits(m_bp, f"ESC_WheelPressure_{wheel}")
+        bp[f"ESC_WheelPressure_{wheel}"] = _quantise(np.maximum(base + extra + pr[1 + w], 0.0), lsb, lo, hi)
+    bp["ESC_Pressure_QBit"] = np.zeros(t_bp.size)
+    series["ESC_BrakePressure"] = MessageSeries("ESC_BrakePressure", t_bp, bp)
+
+    # VSC status
+    m_st = msg("VSC_Status")
+    t_st = times("VSC_Status", 8)
+    j_st = latest(t_st)
+    ok_st = j_st >= 0
+    j_st = np.maximum(j_st, 0)
+    valid = ok_st & (est_arrays["valid"][j_st] > 0.5)
+    st: dict[str, FloatArray] = {}
+    lsb, lo, hi = _signal_limits(m_st, "VSC_BetaEstimate")
+    st["VSC_BetaEstimate"] = np.where(valid, _quantise(est_arrays["beta"][j_st] / _DEG, lsb, lo, hi), 0.0)
+    st["VSC_Beta_QBit"] = np.where(valid, 0.0, 1.0)
+    lsb, lo, hi = _signal_limits(m_st, "VSC_VehicleSpeed")
+    st["VSC_VehicleSpeed"] = np.where(ok_st, _quantise(v_ref[j_st] / _KMH, lsb, lo, hi), 0.0)
+    err_dps = (yaw_si - est_arrays["yaw_rate_offset"] - est_arrays["yaw_rate_reference"]) / _DEG
+    lsb, lo, hi = _signal_limits(m_st, "VSC_YawRateError")
+    st["VSC_YawRateError"] = np.where(valid, _quantise(err_dps[j_st], lsb, lo, hi), 0.0)
+    st["VSC_Active"] = (ok_st & (est_arrays["active"][j_st] > 0.5)).astype(np.float64)
+    st["VSC_Off"] = np.zeros(t_st.size)
+    st["ABS_Active"] = np.zeros(t_st.size)
+    st["TCS_Active"] = np.zeros(t_st.size)
+    for w, wheel in enumerate(("FL", "FR", "RL", "RR")):
+        st[f"VSC_Intervention_{wheel}"] = (ok_st & interventions[j_st, w]).astype(np.float64)
+    series["VSC_Status"] = MessageSeries("VSC_Status", t_st, st)
+
+    # diagnostics, multiplexed: pages alternate
+    m_dg = msg("VSC_Diag")
+    t_dg = times("VSC_Diag", 9)
+    j_dg = np.maximum(latest(t_dg), 0)
+    page = (np.arange(t_dg.size) % 2).astype(np.float64)
+    dg: dict[str, FloatArray] = {"VSC_Diag_Page": page}
+    diag_values = {
+        "VSC_YawRateOffset": est_arrays["yaw_rate_offset"] / _DEG,
+        "VSC_LatAccelOffset": est_arrays["lat_accel_offset"],
+        "VSC_RollAngleEst": est_arrays["roll_estimate"] / _DEG,
+        "VSC_BetaKinematic": est_arrays["beta_kinematic"] / _DEG,
+        "VSC_BetaModel": est_arrays["beta_model"] / _DEG,
+        "VSC_BlendTau": est_arrays["tau_s"],
+        "VSC_YawRateModel": est_arrays["yaw_rate_model"] / _DEG,
+    }
+    for name, values in diag_values.items():
+        lsb, lo, hi = _signal_limits(m_dg, name)
+        dg[name] = _quantise(values[j_dg], lsb, lo, hi)
+    series["VSC_Diag"] = MessageSeries("VSC_Diag", t_dg, dg)
+
+    return EcuOutputs(messages=series, estimator_t=t_sc, estimator=est_arrays)
+
+
+def _invalid_step() -> EstimatorStep:
+    return EstimatorStep(0.0, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, (False, False, False, False))
+
+
+# --- encoding ----------------------------------------------------------------------------------
+
+
+class _Encoder:
+    """Encodes one message's rows with cantools, then its rolling counter and checksum."""
+
+    def __init__(self, message: DbcMessage, algorithm: ChecksumAlgorithm | None) -> None:
+        self.message = message
+        self.algorithm = algorithm
+        names = {s.name for s in message.signals}
+        self.counter = "COUNTER" if "COUNTER" in names else None
+        self.checksum = "CHECKSUM" if "CHECKSUM" in names else None
+        if algorithm is not None and self.checksum is None:
+            raise SimulationError(f"simulated VSC ECU: {message.name} has a checksum algorithm but no CHECKSUM signal")
+        if self.checksum is not None:
+            sig = message.get_signal_by_name(self.checksum)
+            if sig.byte_order != "little_endian" or sig.start != 0 or sig.length != 8:
+                raise SimulationError(f"simulated VSC ECU: {message.name}.CHECKSUM must be byte 0 (Intel, 8 bits)")
+        self.count = 0
+        self._mux_signals: dict[int, list[str]] = {}
+        if message.is_multiplexed():
+            for sig in message.signals:
+                for mux_id in sig.multiplexer_ids or ():
+                    self._mux_signals.setdefault(mux_id, []).append(sig.name)
+
+    def encode(self, values: dict[str, float]) -> bytes:
+        message = self.message
+        if self._mux_signals:
+            mux_name = next(s.name for s in message.signals if s.is_multiplexer)
+            page = int(values[mux_name])
+            values = {mux_name: page, **{k: values[k] for k in self._mux_signals.get(page, [])}}
+        if self.counter is not None:
+            values[self.counter] = self.count % 16
+            self.count += 1
+        if self.checksum is not None:
+            values[self.checksum] = 0
+        data = bytearray(message.encode(values, scaling=True, padding=False, strict=True))
+        if self.algorithm is not None:
+            data[0] = self.algorithm.compute(message.frame_id, bytes(data))
+        return bytes(data)
+
+
+def frames(
+    truth: GroundTruth,
+    config: VscEcuConfig | None = None,
+    *,
+    t0_s: float = 0.0,
+    outputs: EcuOutputs | None = None,
+    db: Database | None = None,
+) -> Iterator[tuple[float, can.Message]]:
+    """The ECU's frames in transmit order as ``(t_s, message)``; ``t_s`` is seconds from the truth's
+    start and ``message.timestamp = t0_s + t_s``. Pure: nothing is sent anywhere."""
+    cfg = config or VscEcuConfig()
+    db = db or load_dbc(vsc_sim_dbc_path())
+    out = outputs or simulate_ecu(truth, cfg, db)
+
+    def one(series: MessageSeries) -> Iterator[tuple[float, int, str, int]]:
+        for i, t in enumerate(series.t):
+            yield float(t), db.get_message_by_name(series.name).frame_id, series.name, i
+
+    encoders: dict[str, _Encoder] = {}
+    for name in out.messages:
+        algo_name = cfg.checksums.get(name)
+        algorithm = get_checksum(algo_name, where=f"VscEcuConfig.checksums.{name}") if algo_name else None
+        encoders[name] = _Encoder(db.get_message_by_name(name), algorithm)
+    for t, frame_id, name, i in heapq.merge(*(one(s) for s in out.messages.values())):
+        series = out.messages[name]
+        values = {k: float(v[i]) for k, v in series.signals.items()}
+        data = encoders[name].encode(values)
+        yield (
+            t,
+            can.Message(
+                timestamp=t0_s + t,
+                arbitration_id=frame_id,
+                is_extended_id=False,
+                data=data,
+                dlc=len(data),
+            ),
+        )
+
+
+# --- the running ECU ---------------------------------------------------------------------------
+
+
+class VscEcu:
+    """Sends the simulated ECU's frames on a python-can bus, paced by a clock.
+
+    GroundTruth time 0 is clock time ``t0_ns``; a frame due at ``t`` is sent at
+    ``t0_ns + t·1e9`` on ``clock`` (a :class:`~vsccore.clock.ScaledClock` runs the drive faster
+    than real time) and carries that time as ``msg.timestamp`` (open the bus with
+    ``preserve_timestamps=True`` for a virtual bus to keep it). Frames already more than
+    ``max_lag_s`` late when their turn comes are skipped, as a real ECU that was already running
+    would not have them queued. The bus is not closed here: it belongs to the caller.
+
+    The constructor computes the whole drive (:func:`simulate_ecu`), which takes a while for long
+    drives; pass ``outputs`` computed beforehand (with the same ``config``) when ``t0_ns`` is close.
+    """
+
+    def __init__(
+        self,
+        truth: GroundTruth,
+        bus: can.BusABC,
+        clock: Clock,
+        t0_ns: int,
+        config: VscEcuConfig | None = None,
+        *,
+        db: Database | None = None,
+        max_lag_s: float = 0.5,
+        outputs: EcuOutputs | None = None,
+    ) -> None:
+        self.config = config or VscEcuConfig()
+        self._db = db or load_dbc(vsc_sim_dbc_path())
+        self.truth = truth
+        self.outputs = outputs if outputs is not None else simulate_ecu(truth, self.config, self._db)
+        self._bus = bus
+        self._clock = clock
+        self._t0_ns = t0_ns
+        self._max_lag_ns = int(max_lag_s * 1e9)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.finished = threading.Event()
+        """Set when the drive has been sent to its end, stopped, or failed."""
+        self.frames_sent = 0
+        self.frames_skipped = 0
+        self.failure: BaseException | None = None
+
+    def start(self) -> None:
+        """Start sending on a thread (see :meth:`run`)."""
+        if self._thread is not None:
+            raise RuntimeError("simulated VSC ECU already started")
+        self._thread = threading.Thread(target=self._thread_main, name="vsc-ecu")
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Stop sending and join the thread (the bus stays open)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                raise SimulationError(f"simulated VSC ECU: thread did not stop within {timeout_s} s")
+
+    def __enter__(self) -> VscEcu:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _thread_main(self) -> None:
+        try:
+            self.run()
+        except can.CanError as exc:
+            log.warning("simulated VSC ECU: bus send failed, stopping: %s", exc)
+            self.failure = exc
+        finally:
+            self.finished.set()
+
+    def run(self) -> None:
+        """Send every frame at its time until the drive ends or :meth:`stop` is called (blocking).
+
+        Raises:
+            can.CanError: the bus refused a frame.
+        """
+        for t, msg in frames(self.truth, self.config, outputs=self.outputs, db=self._db):
+            due_ns = self._t0_ns + round(t * 1e9)
+            if not self._clock.sleep_until_ns(due_ns, self._stop):
+                return
+            if self._clock.now_ns() - due_ns > self._max_lag_ns:
+                self.frames_skipped += 1
+                continue
+            msg.timestamp = due_ns / 1e9
+            self._bus.send(msg)
+            self.frames_sent += 1
+        self.finished.set()
+
+
+class SimulatedVscBus:
+    """The simulated ECU on a python-can virtual channel of its own, optionally served by socketcand.
+
+    In-process consumers open ``can.Bus(interface="virtual", channel=self.channel)`` (or a
+    :class:`~drivers.can.bus.CanBusSession` with interface ``virtual``); other processes connect
+    with python-can's ``socketcand`` interface to :attr:`address`, bus name ``bus_name``. GroundTruth
+    time 0 is ``t0_ns`` on ``clock`` (see :class:`VscEcu`). ``port=0`` picks a free port, which
+    :attr:`address` tells after :meth:`start`. :meth:`stop` stops the ECU, the server and closes
+    the ECU's bus. Channel names are python-can's process-wide virtual channels: give each
+    simulated car its own.
+    """
+
+    def __init__(
+        self,
+        truth: GroundTruth,
+        *,
+        clock: Clock,
+        t0_ns: int,
+        channel: str = "vsc-sim",
+        config: VscEcuConfig | None = None,
+        serve: bool = True,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        bus_name: str = "vsc0",
+        db: Database | None = None,
+    ) -> None:
+        self.truth = truth
+        self.channel = channel
+        self.bus_name = bus_name
+        self._clock = clock
+        self._t0_ns = t0_ns
+        self._config = config
+        self._db = db
+        self._serve = serve
+        self._host = host
+        self._port = port
+        self._bus: can.BusABC | None = None
+        self._server: SocketcandServer | None = None
+        self.ecu: VscEcu | None = None
+
+    @property
+    def address(self) -> tuple[str, int] | None:
+        """``(host, port)`` of the socketcand server (None when not serving or not started)."""
+        return None if self._server is None else self._server.address
+
+    @property
+    def finished(self) -> threading.Event:
+        """Set when the ECU has sent its whole drive (or stopped). Raises RuntimeError before start."""
+        if self.ecu is None:
+            raise RuntimeError("simulated VSC bus not started")
+        return self.ecu.finished
+
+    def start(self) -> None:
+        """Open the ECU's bus, start the socketcand server (if serving) and the ECU.
+
+        Raises:
+            DeviceError: the server cannot listen on ``host:port``.
+            RuntimeError: already started.
+        """
+        if self._bus is not None:
+            raise RuntimeError(f"simulated VSC bus {self.channel!r} already started")
+        self._bus = can.Bus(interface="virtual", channel=self.channel, preserve_timestamps=True)
+        try:
+            if self._serve:
+                self._server = SocketcandServer(
+                    virtual_channel_opener({self.bus_name: self.channel}), host=self._host, port=self._port
+                )
+                self._server.start()
+            self.ecu = VscEcu(self.truth, self._bus, self._clock, self._t0_ns, self._config, db=self._db)
+            self.ecu.start()
+        except BaseException:
+            self.stop()
+            raise
+
+    def stop(self) -> None:
+        """Stop the ECU and the server and close the ECU's bus (each step runs even if one fails)."""
+        try:
+            if self.ecu is not None:
+                self.ecu.stop()
+        finally:
+            server, self._server = self._server, None
+            bus, self._bus = self._bus, None
+            try:
+                if server is not None:
+                    server.stop()
+            finally:
+                if bus is not None:
+                    bus.shutdown()
+
+    def __enter__(self) -> SimulatedVscBus:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
