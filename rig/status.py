@@ -8,6 +8,7 @@ terminal, and the same numbers go into ``/rig/events`` at the end of the session
 
 from __future__ import annotations
 
+import math
 import threading
 from collections import deque
 from dataclasses import dataclass, field, replace
@@ -17,7 +18,15 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
-__all__ = ["DeviceState", "DeviceStatus", "SessionStatus", "StatusBoard", "render_status"]
+__all__ = [
+    "DeviceState",
+    "DeviceStatus",
+    "SessionStatus",
+    "StatusBoard",
+    "VehicleStatus",
+    "render_status",
+    "status_line",
+]
 
 
 class DeviceState(StrEnum):
@@ -46,6 +55,28 @@ class DeviceStatus:
 
 
 @dataclass(frozen=True, slots=True)
+class VehicleStatus:
+    """Live figures of the car from the references (NaN where not available yet)."""
+
+    speed_kmh: float = float("nan")
+    baseline_m: float = float("nan")
+    """Measured antenna A–B distance from the latest pair of RTK positions."""
+    baseline_nominal_m: float = float("nan")
+    baseline_tolerance_m: float = 0.03
+    beta_deg: float = float("nan")
+    """Live sideslip at antenna A (heading of the baseline − course), mount offset removed."""
+    ltr: float = float("nan")
+    ltr_predicted: float = float("nan")
+    ltr_warning: bool = False
+    correction_age_s: float = float("nan")
+    relay_bytes_per_s: float = float("nan")
+
+    @property
+    def baseline_ok(self) -> bool:
+        return abs(self.baseline_m - self.baseline_nominal_m) <= self.baseline_tolerance_m
+
+
+@dataclass(frozen=True, slots=True)
 class SessionStatus:
     """Snapshot of the whole session."""
 
@@ -57,6 +88,8 @@ class SessionStatus:
     messages_written: int = 0
     dropped: int = 0
     recent_events: tuple[str, ...] = ()
+    vehicle: VehicleStatus = VehicleStatus()
+    free_disk_mb: float = float("nan")
 
 
 @dataclass(slots=True)
@@ -80,6 +113,8 @@ class StatusBoard:
         self._bytes = 0
         self._written = 0
         self._dropped = 0
+        self._vehicle = VehicleStatus()
+        self._free_disk_mb = float("nan")
 
     def add_device(self, name: str, kind: str) -> None:
         with self._lock:
@@ -116,6 +151,15 @@ class StatusBoard:
         with self._lock:
             self._file, self._bytes, self._written, self._dropped = file, bytes_written, messages_written, dropped
 
+    def vehicle(self, **figures: float | bool) -> None:
+        """Update some of the live vehicle figures (names of :class:`VehicleStatus` fields)."""
+        with self._lock:
+            self._vehicle = replace(self._vehicle, **figures)  # type: ignore[arg-type]
+
+    def free_disk(self, mb: float) -> None:
+        with self._lock:
+            self._free_disk_mb = mb
+
     def snapshot(self, now_ns: int) -> SessionStatus:
         with self._lock:
             devices = []
@@ -135,6 +179,8 @@ class StatusBoard:
                 messages_written=self._written,
                 dropped=self._dropped,
                 recent_events=tuple(self._events),
+                vehicle=self._vehicle,
+                free_disk_mb=self._free_disk_mb,
             )
 
 
@@ -166,8 +212,39 @@ def render_status(status: SessionStatus, now_ns: int) -> Group:
         )
     mb = status.bytes_written / 1e6
     file_line = Text(
-        f"file {status.file or '-'}  {mb:.1f} MB  {status.messages_written} messages  dropped {status.dropped}",
+        f"file {status.file or '-'}  {mb:.1f} MB  {status.messages_written} messages  dropped {status.dropped}"
+        f"  free disk {_fmt(status.free_disk_mb, '.0f')} MB",
         style="red" if status.dropped else "",
     )
     events = [Text(f"• {e}", style="dim") for e in status.recent_events]
-    return Group(table, file_line, *events)
+    return Group(table, _vehicle_line(status.vehicle), file_line, *events)
+
+
+def _fmt(x: float, spec: str) -> str:
+    return "-" if math.isnan(x) else format(x, spec)
+
+
+def _vehicle_line(v: VehicleStatus) -> Text:
+    line = Text()
+    line.append(f"speed {_fmt(v.speed_kmh, '5.1f')} km/h   β {_fmt(v.beta_deg, '+6.2f')}°   ")
+    baseline = f"baseline {_fmt(v.baseline_m, '.3f')} m (nominal {_fmt(v.baseline_nominal_m, '.3f')})   "
+    style = "" if math.isnan(v.baseline_m) or v.baseline_ok else "bold red"
+    line.append(baseline, style=style)
+    line.append(f"LTR {_fmt(v.ltr, '+.2f')} → {_fmt(v.ltr_predicted, '+.2f')}   ")
+    if v.ltr_warning:
+        line.append("ROLLOVER WARNING   ", style="bold white on red")
+    line.append(f"corrections {_fmt(v.correction_age_s, '.1f')} s old, {_fmt(v.relay_bytes_per_s, '.0f')} B/s")
+    return line
+
+
+def status_line(status: SessionStatus) -> str:
+    """One plain line for logs and non-terminal output (no colours, no cursor movement)."""
+    devs = " ".join(f"{d.name}={d.state.value}:{d.rate_hz:.0f}Hz" + (f"({d.detail})" if d.detail else "")
+                    for d in status.devices)
+    v = status.vehicle
+    return (
+        f"[{status.elapsed_s:7.1f} s] {devs} | speed {_fmt(v.speed_kmh, '.1f')} km/h "
+        f"β {_fmt(v.beta_deg, '+.2f')}° baseline {_fmt(v.baseline_m, '.3f')} m LTR {_fmt(v.ltr, '+.2f')}"
+        f"{' ROLLOVER WARNING' if v.ltr_warning else ''} | {status.bytes_written / 1e6:.1f} MB "
+        f"{status.messages_written} msgs dropped {status.dropped} free {_fmt(status.free_disk_mb, '.0f')} MB"
+    )
