@@ -1,0 +1,880 @@
+"""Reference sideslip from a dual-antenna GNSS ("1+2") set-up and from an optical slip sensor.
+
+GNSS reference (all at the GNSS epochs, times in s):
+
+- heading: azimuth of the antenna baseline B → A (A ahead of B) minus the calibrated mounting
+  offset (:func:`calibration.mount.apply_mount_offset`); course: azimuth of the velocity of A.
+  β_A = heading − course (:func:`vsccore.angles.sideslip_from_azimuths`, ISO 8855 sign).
+- β_A is moved to the CG and to any named body point with the yaw rate:
+  v_P = v_A + ω × (r_P − r_A) (:func:`vsccore.angles.transfer_velocity`).
+- an epoch is invalid (NaN, with an :class:`InvalidReason` bitmask) below a minimum speed, when
+  either rover is not RTK fixed, when the measured baseline length is off its nominal value by more
+  than the tolerance, when an input is missing, or when the yaw rate is missing.
+
+Three methods (the result says which in ``method``):
+
+- ``raw``: the per-epoch β, with σ from the sensor specs (σ_ψ = √(σ_A⊥² + σ_B⊥²)/L, σ_χ = σ_v/V).
+- ``wavelet``: raw β at the CG denoised by :func:`rig.analysis.smoothing.wavelet_denoise`.
+- ``rts``: a Kalman filter and Rauch–Tung–Striebel smoother in two decoupled linear channels
+  (docs/analysis.md has the derivation):
+
+  * heading, states [ψ, b_r, e_ψ]: ψ[k+1] = ψ[k] + ∫r_m dt − b_r·Δt (gyro increments between
+    epochs, yaw-rate bias b_r a random walk); the GNSS heading measures ψ + e_ψ, with e_ψ a
+    first-order Gauss–Markov error (σ_e = √2·σ_p/L, correlation time τ of the position errors), so
+    the filter does not treat time-correlated baseline noise as independent samples.
+  * course, states [ν, s_a, c_a] with ν the direction of the CG velocity (counter-clockwise from
+    east, β = ν − ψ): ν̇ = a_n/V, with the normal acceleration a_n from the lateral accelerometer
+    (static roll correction a_y/(1 + g·k_φ), then a residual scale s_a and bias c_a as random-walk
+    states) and V from GNSS; the measurement is the direction of the CG velocity obtained from the
+    velocity at A, the smoothed heading and the bias-corrected yaw rate. Without a lateral
+    accelerometer the course follows the corrected gyro (ν̇ = r + β̇, β̇ white).
+
+  β = ν − ψ with variance σ_ν² + σ_ψ² (the channels see independent measurement errors).
+
+Optical reference: :func:`optical_sideslip` moves a (zero-corrected) Correvit velocity to the CG;
+:func:`cross_check` flags where two references disagree beyond their combined uncertainty.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+import pymap3d
+
+from calibration.mount import apply_mount_offset, apply_optical_zero
+from rig.analysis._arrays import BoolArray, as_1d, as_bool, check_time, runs
+from rig.analysis.smoothing import rts_smooth3, wavelet_denoise
+from vsccore.angles import (
+    FloatArray,
+    azimuth_to_yaw,
+    sideslip_from_azimuths,
+    sideslip_from_velocity,
+    transfer_velocity,
+    unwrap,
+    wrap_2pi,
+    wrap_pi,
+    yaw_to_azimuth,
+)
+from vsccore.errors import AnalysisError
+
+__all__ = [
+    "AntennaGeometry",
+    "CrossCheck",
+    "GnssEpochs",
+    "GnssSpec",
+    "ImuSeries",
+    "ImuSpec",
+    "InvalidReason",
+    "OpticalSideslip",
+    "ReferenceMethod",
+    "ReferenceSideslip",
+    "cross_check",
+    "optical_sideslip",
+    "reference_sideslip",
+    "resample_mean",
+    "tyre_slip_angles",
+    "vehicle_points",
+]
+
+G = 9.80665
+U8 = npt.NDArray[np.uint8]
+
+
+class ReferenceMethod(enum.StrEnum):
+    """How the reference sideslip was obtained."""
+
+    RAW = "raw"
+    WAVELET = "wavelet"
+    RTS = "rts"
+
+
+class InvalidReason(enum.IntFlag):
+    """Why an epoch of a reference is invalid (bits of ``ReferenceSideslip.reasons``)."""
+
+    NO_DATA = 1
+    """A needed GNSS input is missing (NaN)."""
+    LOW_SPEED = 2
+    """Speed below the minimum: the course is undefined or too noisy."""
+    A_NOT_FIXED = 4
+    """Rover A not RTK fixed."""
+    B_NOT_FIXED = 8
+    """Rover B not RTK fixed."""
+    BASELINE_LENGTH = 16
+    """Measured antenna separation off its nominal length by more than the tolerance."""
+    NO_YAW_RATE = 32
+    """No yaw rate at this epoch (needed to move the velocity to the CG)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Inputs
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class AntennaGeometry:
+    """Where antenna A sits and what the baseline should measure."""
+
+    a_xy: tuple[float, float]
+    """Antenna A from the CG in vehicle axes (m, x forward, y left)."""
+    baseline_length_m: float
+    """Nominal antenna separation (m)."""
+    baseline_tolerance_m: float = 0.03
+    mount_offset_rad: float = 0.0
+    """Calibrated mounting offset: baseline azimuth − vehicle x-axis azimuth (see calibration.mount)."""
+
+    def __post_init__(self) -> None:
+        if not self.baseline_length_m > 0.0:
+            raise AnalysisError(f"baseline_length_m must be positive, got {self.baseline_length_m}")
+        if not self.baseline_tolerance_m > 0.0:
+            raise AnalysisError(f"baseline_tolerance_m must be positive, got {self.baseline_tolerance_m}")
+
+
+@dataclass(frozen=True, slots=True)
+class GnssSpec:
+    """GNSS error model (1σ), from the receiver specification or a static test."""
+
+    position_sigma_m: float = 0.02
+    """Horizontal position error of each antenna, per axis (m)."""
+    position_tau_s: float = 1.0
+    """Correlation time of the position errors (s)."""
+    velocity_sigma_mps: float = 0.03
+    """Horizontal velocity error per axis (m/s), taken as white at the epoch rate."""
+    relative_sigma_m: float | None = None
+    """Per antenna and axis, the part of the position error NOT common to both antennas (m).
+
+    Only this part reaches the baseline: both rovers use the same base, satellites and atmosphere,
+    so most of an RTK position error cancels in B → A. None: the errors are taken as independent
+    (``position_sigma_m``), which is pessimistic for a real dual-antenna set-up."""
+    relative_tau_s: float | None = None
+    """Correlation time of the relative part (s); None: ``position_tau_s``."""
+
+    @property
+    def baseline_sigma_m(self) -> float:
+        """Per-antenna, per-axis σ that reaches the baseline (m)."""
+        return self.position_sigma_m if self.relative_sigma_m is None else self.relative_sigma_m
+
+    @property
+    def baseline_tau_s(self) -> float:
+        """Correlation time of the baseline error (s)."""
+        return self.position_tau_s if self.relative_tau_s is None else self.relative_tau_s
+    heading_white_sigma_rad: float = 1e-4
+    """Small white part of the baseline heading error (rad), on top of the Gauss–Markov part."""
+
+
+@dataclass(frozen=True, slots=True)
+class ImuSpec:
+    """Yaw-rate and lateral-acceleration sensor model (CAN sensor cluster or IMU)."""
+
+    yaw_rate_noise_density: float = 3e-4
+    """White yaw-rate noise density, rad/s/√Hz (angle random walk)."""
+    yaw_rate_bias_sigma_rps: float = math.radians(1.0)
+    """Prior 1σ of the yaw-rate bias (rad/s)."""
+    yaw_rate_bias_rw: float = math.radians(0.002)
+    """Yaw-rate bias random walk, rad/s/√s."""
+    yaw_rate_scale_sigma: float = 0.002
+    """Relative scale error of the yaw rate, applied to each increment (as white)."""
+    ay_noise_density: float = 0.01
+    """White lateral-acceleration noise density, m/s²/√Hz."""
+    ay_model_density: float = 0.01
+    """Unmodelled lateral-acceleration error (roll dynamics, mounting), m/s²/√Hz, treated as white."""
+    ay_bias_sigma_mps2: float = 0.3
+    ay_bias_rw: float = 0.002
+    """m/s²/√s."""
+    ay_scale_sigma: float = 0.1
+    """Prior 1σ of the residual scale error of a_y (roll gravity component left after the correction)."""
+    ay_scale_rw: float = 0.002
+    """1/√s."""
+    roll_gain_rad_per_mps2: float = 0.0
+    """Static roll gain k_φ used to take the gravity component out of a body-fixed a_y."""
+    accel_xy: tuple[float, float] = (0.0, 0.0)
+    """Accelerometer position from the CG (m)."""
+    beta_rate_density: float = 0.05
+    """Without a_y: sideslip-rate process noise density, rad/s/√Hz."""
+
+
+@dataclass(frozen=True, slots=True)
+class GnssEpochs:
+    """The dual-antenna observables at common GNSS epochs (t in s, angles in rad)."""
+
+    t: FloatArray
+    baseline_azimuth: FloatArray
+    """Azimuth of the vector B → A, clockwise from north."""
+    baseline_length: FloatArray
+    """Measured antenna separation (m, 3-D)."""
+    velocity_east: FloatArray
+    """Velocity of antenna A (m/s)."""
+    velocity_north: FloatArray
+    fixed_a: BoolArray
+    fixed_b: BoolArray
+    position_sigma_a: FloatArray | None = None
+    """Optional per-epoch horizontal position σ of A (m, per axis), e.g. from BESTPOS."""
+    position_sigma_b: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        t = check_time("gnss.t", self.t)
+        n = t.size
+        for name in ("baseline_azimuth", "baseline_length", "velocity_east", "velocity_north"):
+            object.__setattr__(self, name, as_1d(f"gnss.{name}", getattr(self, name), n))
+        for name in ("fixed_a", "fixed_b"):
+            object.__setattr__(self, name, as_bool(f"gnss.{name}", getattr(self, name), n))
+        for name in ("position_sigma_a", "position_sigma_b"):
+            v = getattr(self, name)
+            if v is not None:
+                object.__setattr__(self, name, as_1d(f"gnss.{name}", v, n))
+        object.__setattr__(self, "t", t)
+
+    @classmethod
+    def from_enu(
+        cls,
+        t: npt.ArrayLike,
+        a_enu: tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike],
+        b_enu: tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike],
+        velocity_a_en: tuple[npt.ArrayLike, npt.ArrayLike],
+        fixed_a: npt.ArrayLike | None = None,
+        fixed_b: npt.ArrayLike | None = None,
+    ) -> GnssEpochs:
+        """From local east/north/up positions of both antennas (m) and the east/north velocity of A."""
+        ea, na, ua = (np.asarray(x, dtype=float) for x in a_enu)
+        eb, nb, ub = (np.asarray(x, dtype=float) for x in b_enu)
+        de, dn, du = ea - eb, na - nb, ua - ub
+        tt = check_time("gnss.t", t)
+        return cls(
+            t=tt,
+            baseline_azimuth=np.asarray(wrap_2pi(np.arctan2(de, dn)), dtype=float),
+            baseline_length=np.sqrt(de * de + dn * dn + du * du),
+            velocity_east=np.asarray(velocity_a_en[0], dtype=float),
+            velocity_north=np.asarray(velocity_a_en[1], dtype=float),
+            fixed_a=as_bool("fixed_a", fixed_a, tt.size),
+            fixed_b=as_bool("fixed_b", fixed_b, tt.size),
+        )
+
+    @classmethod
+    def from_geodetic(
+        cls,
+        t: npt.ArrayLike,
+        a_llh: tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike],
+        b_llh: tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike],
+        track_over_ground_rad: npt.ArrayLike,
+        horizontal_speed_mps: npt.ArrayLike,
+        fixed_a: npt.ArrayLike | None = None,
+        fixed_b: npt.ArrayLike | None = None,
+        position_sigma_a: npt.ArrayLike | None = None,
+        position_sigma_b: npt.ArrayLike | None = None,
+    ) -> GnssEpochs:
+        """From BESTPOS (latitude, longitude in degrees, ellipsoidal height in m) of both antennas and BESTVEL of A.
+
+        The baseline is resolved in the local east/north/up frame at antenna A at each epoch (so
+        meridian convergence over a long drive does not tilt it).
+        """
+        lat_a, lon_a, h_a = (np.asarray(x, dtype=float) for x in a_llh)
+        lat_b, lon_b, h_b = (np.asarray(x, dtype=float) for x in b_llh)
+        # position of A seen from B, in the frame at B (≈ the frame at A: 1.6 m apart)
+        de, dn, du = pymap3d.geodetic2enu(lat_a, lon_a, h_a, lat_b, lon_b, h_b)
+        de, dn, du = (np.asarray(x, dtype=float) for x in (de, dn, du))
+        trk = np.asarray(track_over_ground_rad, dtype=float)
+        spd = np.asarray(horizontal_speed_mps, dtype=float)
+        tt = check_time("gnss.t", t)
+        return cls(
+            t=tt,
+            baseline_azimuth=np.asarray(wrap_2pi(np.arctan2(de, dn)), dtype=float),
+            baseline_length=np.sqrt(de * de + dn * dn + du * du),
+            velocity_east=spd * np.sin(trk),
+            velocity_north=spd * np.cos(trk),
+            fixed_a=as_bool("fixed_a", fixed_a, tt.size),
+            fixed_b=as_bool("fixed_b", fixed_b, tt.size),
+            position_sigma_a=None if position_sigma_a is None else as_1d("position_sigma_a", position_sigma_a),
+            position_sigma_b=None if position_sigma_b is None else as_1d("position_sigma_b", position_sigma_b),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class ImuSeries:
+    """Yaw rate (rad/s, + turning left) and optional body-fixed lateral acceleration (m/s²), own time base (s)."""
+
+    t: FloatArray
+    yaw_rate: FloatArray
+    ay: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        t = check_time("imu.t", self.t, min_samples=2)
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "yaw_rate", as_1d("imu.yaw_rate", self.yaw_rate, t.size))
+        if self.ay is not None:
+            object.__setattr__(self, "ay", as_1d("imu.ay", self.ay, t.size))
+
+
+# --------------------------------------------------------------------------------------------
+# Result
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class ReferenceSideslip:
+    """Reference sideslip at the CG (and at named points) on the GNSS epochs."""
+
+    t: FloatArray
+    beta: FloatArray
+    """Sideslip at the CG (rad), NaN where invalid."""
+    sigma: FloatArray
+    """Standard uncertainty of ``beta`` (rad), NaN where invalid."""
+    valid: BoolArray
+    reasons: U8
+    """:class:`InvalidReason` bits per epoch (0 where valid)."""
+    method: ReferenceMethod
+    speed: FloatArray
+    """Speed over ground of the CG (m/s)."""
+    yaw_rate: FloatArray
+    """Yaw rate used for the lever arms (rad/s; bias-corrected by the RTS method)."""
+    heading: FloatArray
+    """Vehicle x-axis azimuth, clockwise from north (rad; smoothed by the RTS method)."""
+    points: Mapping[str, FloatArray] = field(default_factory=dict)
+    """Sideslip (rad) at each named body point, NaN where invalid."""
+    coverage_factor: float = 2.0
+    """k for the stated expanded uncertainty U = k·σ (≈ 95 % for a normal error)."""
+    diagnostics: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def u95(self) -> FloatArray:
+        """Expanded (≈ 95 %) uncertainty k·σ (rad)."""
+        return self.coverage_factor * self.sigma
+
+    @property
+    def valid_fraction(self) -> float:
+        """Fraction of epochs with a valid reference."""
+        return float(np.mean(self.valid)) if self.valid.size else 0.0
+
+    def reason_counts(self) -> dict[str, int]:
+        """How many epochs each reason made invalid (an epoch may have several)."""
+        return {r.name or str(int(r)): int(np.count_nonzero(self.reasons & int(r))) for r in InvalidReason}
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-able summary (no arrays; angles in degrees)."""
+        ok = self.valid
+        return {
+            "method": str(self.method),
+            "n_epochs": int(self.t.size),
+            "valid_fraction": self.valid_fraction,
+            "invalid_reasons": self.reason_counts(),
+            "median_sigma_deg": float(np.degrees(np.median(self.sigma[ok]))) if np.any(ok) else None,
+            "coverage_factor": self.coverage_factor,
+            "points": sorted(self.points),
+            "diagnostics": dict(self.diagnostics),
+        }
+
+
+# --------------------------------------------------------------------------------------------
+# Helpers
+# --------------------------------------------------------------------------------------------
+
+
+def vehicle_points(
+    cg_to_front_axle_m: float,
+    cg_to_rear_axle_m: float,
+    track_front_m: float,
+    track_rear_m: float,
+    extra: Mapping[str, tuple[float, float]] | None = None,
+) -> dict[str, tuple[float, float]]:
+    """Axle centres and wheel centres (FL FR RL RR) relative to the CG, plus ``extra`` points."""
+    a, b = cg_to_front_axle_m, cg_to_rear_axle_m
+    pts = {
+        "front_axle": (a, 0.0),
+        "rear_axle": (-b, 0.0),
+        "fl": (a, track_front_m / 2.0),
+        "fr": (a, -track_front_m / 2.0),
+        "rl": (-b, track_rear_m / 2.0),
+        "rr": (-b, -track_rear_m / 2.0),
+    }
+    if extra:
+        pts.update({k: (float(v[0]), float(v[1])) for k, v in extra.items()})
+    return pts
+
+
+def _cumulative(t: FloatArray, x: FloatArray) -> FloatArray:
+    """Cumulative trapezoid integral of x over t, starting at 0."""
+    inc = 0.5 * (x[1:] + x[:-1]) * np.diff(t)
+    return np.concatenate(([0.0], np.cumsum(inc)))
+
+
+def resample_mean(t_src: npt.ArrayLike, x: npt.ArrayLike, t_dst: npt.ArrayLike) -> FloatArray:
+    """Average ``x`` (sampled at ``t_src``) over a window of one destination period centred on each ``t_dst``.
+
+    Used to bring 1 kHz channels (optical sensor) onto the GNSS epochs without aliasing their
+    noise. NaN source samples are left out; a window without samples gives NaN.
+    """
+    ts = check_time("t_src", t_src)
+    xs = as_1d("x", x, ts.size)
+    td = check_time("t_dst", t_dst)
+    if td.size == 1:
+        return np.asarray([np.interp(td[0], ts, xs)], dtype=float)
+    half = 0.5 * np.gradient(td)
+    lo = np.searchsorted(ts, td - half, side="left")
+    hi = np.searchsorted(ts, td + half, side="left")
+    ok = np.isfinite(xs)
+    cs = np.concatenate(([0.0], np.cumsum(np.where(ok, xs, 0.0))))
+    cn = np.concatenate(([0], np.cumsum(ok)))
+    cnt = cn[hi] - cn[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = (cs[hi] - cs[lo]) / cnt
+    return np.asarray(np.where(cnt > 0, out, np.nan), dtype=float)
+
+
+def _at_epochs(t_imu: FloatArray, x: FloatArray, t: FloatArray, max_gap_s: float) -> tuple[FloatArray, BoolArray]:
+    """Linear interpolation of an IMU channel onto the epochs; False where no sample lies within max_gap_s."""
+    ok = np.isfinite(x)
+    if not np.any(ok):
+        return np.full(t.size, np.nan), np.zeros(t.size, dtype=bool)
+    ti, xi = t_imu[ok], x[ok]
+    v = np.interp(t, ti, xi)
+    # good where the epoch lies between two samples at most max_gap_s apart, or within max_gap_s / 2 of one
+    j = np.searchsorted(ti, t, side="right")
+    left = ti[np.clip(j - 1, 0, ti.size - 1)]
+    right = ti[np.clip(j, 0, ti.size - 1)]
+    inside = (j > 0) & (j < ti.size) & (right - left <= max_gap_s)
+    near = np.minimum(np.abs(t - left), np.abs(right - t)) <= 0.5 * max_gap_s
+    good = inside | near
+    return np.asarray(np.where(good, v, np.nan), dtype=float), good
+
+
+def _increments(
+    t_imu: FloatArray, x: FloatArray, t: FloatArray, max_gap_s: float
+) -> tuple[FloatArray, BoolArray]:
+    """∫ x dt over each epoch interval [t_k, t_k+1] and whether the interval was covered by samples."""
+    ok = np.isfinite(x)
+    xf = np.where(ok, x, 0.0)
+    cum = _cumulative(t_imu, xf)
+    theta = np.interp(t, t_imu, cum)
+    inc = np.diff(theta)
+    # an interval is bad if it holds a missing sample, a gap in the IMU record, or lies outside it
+    bad_sample = (~ok).astype(float)
+    gaps = np.concatenate(([0.0], (np.diff(t_imu) > max_gap_s).astype(float)))
+    cb = np.concatenate(([0.0], np.cumsum(bad_sample + gaps)))
+    i0 = np.searchsorted(t_imu, t[:-1], side="left")
+    i1 = np.searchsorted(t_imu, t[1:], side="right")
+    covered = (cb[np.minimum(i1 + 1, cb.size - 1)] - cb[np.maximum(i0, 0)]) == 0
+    covered &= (t[:-1] >= t_imu[0]) & (t[1:] <= t_imu[-1])
+    return inc, covered
+
+
+# --------------------------------------------------------------------------------------------
+# GNSS reference
+# --------------------------------------------------------------------------------------------
+
+
+def reference_sideslip(
+    gnss: GnssEpochs,
+    imu: ImuSeries,
+    geometry: AntennaGeometry,
+    *,
+    method: ReferenceMethod | str = ReferenceMethod.RTS,
+    points: Mapping[str, tuple[float, float]] | None = None,
+    gnss_spec: GnssSpec | None = None,
+    imu_spec: ImuSpec | None = None,
+    min_speed_mps: float = 10.0 / 3.6,
+    max_imu_gap_s: float = 0.1,
+    coverage_factor: float = 2.0,
+) -> ReferenceSideslip:
+    """Reference sideslip at the CG (and at ``points``) from dual-antenna GNSS and the yaw rate.
+
+    Raises:
+        AnalysisError: bad arrays, an unknown method, or no valid epoch at all.
+    """
+    try:
+        meth = ReferenceMethod(method)
+    except ValueError as exc:
+        raise AnalysisError(f"unknown reference method {method!r} (raw, wavelet, rts)") from exc
+    gspec = gnss_spec or GnssSpec()
+    ispec = imu_spec or ImuSpec()
+    t = gnss.t
+    n = t.size
+
+    speed_a = np.hypot(gnss.velocity_east, gnss.velocity_north)
+    course_az = np.asarray(wrap_2pi(np.arctan2(gnss.velocity_east, gnss.velocity_north)), dtype=float)
+    heading_az = apply_mount_offset(gnss.baseline_azimuth, geometry.mount_offset_rad)
+    r_ep, r_ok = _at_epochs(imu.t, imu.yaw_rate, t, max_imu_gap_s)
+
+    reasons = np.zeros(n, dtype=np.uint8)
+    missing = ~(
+        np.isfinite(gnss.baseline_azimuth)
+        & np.isfinite(gnss.baseline_length)
+        & np.isfinite(gnss.velocity_east)
+        & np.isfinite(gnss.velocity_north)
+    )
+    with np.errstate(invalid="ignore"):
+        low = speed_a < min_speed_mps
+        off = np.abs(gnss.baseline_length - geometry.baseline_length_m) > geometry.baseline_tolerance_m
+    reasons[missing] |= np.uint8(InvalidReason.NO_DATA)
+    reasons[low & ~missing] |= np.uint8(InvalidReason.LOW_SPEED)
+    reasons[~gnss.fixed_a] |= np.uint8(InvalidReason.A_NOT_FIXED)
+    reasons[~gnss.fixed_b] |= np.uint8(InvalidReason.B_NOT_FIXED)
+    reasons[off & ~missing] |= np.uint8(InvalidReason.BASELINE_LENGTH)
+    reasons[~r_ok] |= np.uint8(InvalidReason.NO_YAW_RATE)
+    valid = reasons == 0
+    if not np.any(valid):
+        raise AnalysisError(f"reference sideslip: no valid epoch among {n} ({_reason_text(reasons)})")
+
+    # position σ per antenna per axis → heading σ (cross-baseline components of both errors)
+    # (receiver-reported σ, when given, describe each antenna alone: scale them to the relative part)
+    rel = gspec.baseline_sigma_m / gspec.position_sigma_m if gspec.position_sigma_m > 0 else 1.0
+    sp_a = gnss.position_sigma_a * rel if gnss.position_sigma_a is not None else np.full(n, gspec.baseline_sigma_m)
+    sp_b = gnss.position_sigma_b * rel if gnss.position_sigma_b is not None else np.full(n, gspec.baseline_sigma_m)
+    sig_heading = np.sqrt(sp_a**2 + sp_b**2) / geometry.baseline_length_m
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sig_course = gspec.velocity_sigma_mps / speed_a
+
+    # raw β at A and at the CG
+    beta_a = np.asarray(sideslip_from_azimuths(heading_az, course_az), dtype=float)
+    vx_a, vy_a = speed_a * np.cos(beta_a), speed_a * np.sin(beta_a)
+    diagnostics: dict[str, float] = {}
+
+    if meth is ReferenceMethod.RTS:
+        beta_cg, sigma, r_used, psi, speed_cg, diagnostics = _rts_reference(
+            gnss, imu, geometry, gspec, ispec, reasons, speed_a, r_ep, sig_heading, max_imu_gap_s
+        )
+        heading_out = np.asarray(yaw_to_azimuth(psi), dtype=float)
+    else:
+        vx_cg, vy_cg = transfer_velocity(vx_a, vy_a, r_ep, geometry.a_xy, (0.0, 0.0))
+        beta_raw = np.asarray(sideslip_from_velocity(vx_cg, vy_cg), dtype=float)
+        speed_cg = np.hypot(vx_cg, vy_cg)
+        sig_raw = np.sqrt(sig_heading**2 + sig_course**2)
+        r_used = r_ep
+        heading_out = heading_az
+        if meth is ReferenceMethod.RAW:
+            beta_cg, sigma = beta_raw, sig_raw
+        else:
+            # bootstrap with the specified noise (the residual would miss slow, correlated baseline noise)
+            period = float(np.median(np.diff(t))) if n > 1 else 1.0
+            phi_h = math.exp(-period / gspec.baseline_tau_s) if gspec.baseline_tau_s > 0.0 else 0.0
+            wres = wavelet_denoise(
+                np.where(valid, beta_raw, np.nan), noise_model=[(sig_heading, phi_h), (sig_course, 0.0)]
+            )
+            beta_cg = wres.x
+            # segments too short to denoise keep their raw value and raw uncertainty
+            sigma = np.where(np.isfinite(wres.sigma), wres.sigma, sig_raw)
+            diagnostics = {"noise_sigma_deg": math.degrees(wres.noise_sigma), "level": float(wres.level)}
+
+    beta_cg = np.where(valid, beta_cg, np.nan)
+    sigma = np.where(valid, sigma, np.nan)
+    vx_cg = speed_cg * np.cos(beta_cg)
+    vy_cg = speed_cg * np.sin(beta_cg)
+    pts: dict[str, FloatArray] = {}
+    for name, xy in (points or {}).items():
+        vx_p, vy_p = transfer_velocity(vx_cg, vy_cg, r_used, (0.0, 0.0), (float(xy[0]), float(xy[1])))
+        pts[name] = np.asarray(sideslip_from_velocity(vx_p, vy_p), dtype=float)
+    return ReferenceSideslip(
+        t=t,
+        beta=beta_cg,
+        sigma=sigma,
+        valid=valid,
+        reasons=reasons,
+        method=meth,
+        speed=speed_cg,
+        yaw_rate=r_used,
+        heading=heading_out,
+        points=pts,
+        coverage_factor=coverage_factor,
+        diagnostics=diagnostics,
+    )
+
+
+def _reason_text(reasons: U8) -> str:
+    parts = []
+    for r in InvalidReason:
+        c = int(np.count_nonzero(reasons & int(r)))
+        if c:
+            parts.append(f"{r.name}: {c}")
+    return ", ".join(parts) or "none"
+
+
+def _rts_reference(
+    gnss: GnssEpochs,
+    imu: ImuSeries,
+    geometry: AntennaGeometry,
+    gspec: GnssSpec,
+    ispec: ImuSpec,
+    reasons: U8,
+    speed_a: FloatArray,
+    r_ep: FloatArray,
+    sig_heading: FloatArray,
+    max_gap_s: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, dict[str, float]]:
+    """The two-channel smoother (module docstring). Returns β, σ, r̂, ψ̂, V_cg at the epochs, diagnostics."""
+    t = gnss.t
+    n = t.size
+    dt = np.diff(t)
+
+    # ---- heading channel: [ψ, b_r, e_ψ] --------------------------------------------------
+    heading_bits = InvalidReason.NO_DATA | InvalidReason.A_NOT_FIXED | InvalidReason.B_NOT_FIXED
+    heading_bits |= InvalidReason.BASELINE_LENGTH
+    h_ok = (reasons & int(heading_bits)) == 0
+    d_theta, covered = _increments(imu.t, imu.yaw_rate, t, max_gap_s)
+    theta = np.concatenate(([0.0], np.cumsum(d_theta)))
+    psi_meas = np.asarray(azimuth_to_yaw(apply_mount_offset(gnss.baseline_azimuth, geometry.mount_offset_rad)))
+    # unwrap the GNSS yaw along the gyro-integrated yaw so that a gap cannot slip a turn
+    z_h = np.full(n, np.nan)
+    if np.any(h_ok):
+        resid = np.asarray(wrap_pi(psi_meas[h_ok] - theta[h_ok]), dtype=float)
+        z_h[h_ok] = theta[h_ok] + unwrap(resid)
+    tau = max(gspec.baseline_tau_s, 1e-6)
+    phi_e = np.exp(-dt / tau)
+    finite_sig = sig_heading[np.isfinite(sig_heading)]
+    sig_e_default = math.sqrt(2.0) * gspec.baseline_sigma_m / geometry.baseline_length_m
+    sig_e = float(np.median(finite_sig)) if finite_sig.size else sig_e_default
+    sig_e_step = np.where(np.isfinite(sig_heading[1:]), sig_heading[1:], sig_e)
+    q_h = np.empty((n - 1, 3))
+    big = (2.0 * dt) ** 2  # an uncovered interval: up to 2 rad/s of unknown rotation
+    q_h[:, 0] = np.where(
+        covered,
+        ispec.yaw_rate_noise_density**2 * dt + (ispec.yaw_rate_scale_sigma * d_theta) ** 2,
+        big,
+    )
+    q_h[:, 1] = ispec.yaw_rate_bias_rw**2 * dt + 1e-18
+    q_h[:, 2] = sig_e_step**2 * (1.0 - phi_e**2) + 1e-18
+    first = int(np.argmax(h_ok)) if np.any(h_ok) else 0
+    x0_psi = float(z_h[first]) if np.any(h_ok) else 0.0
+    # the prior on ψ at epoch 0 is diffuse; referred to epoch 0 through the gyro increments
+    x0_psi -= float(theta[first])
+    sig_e0 = float(sig_heading[first]) if np.isfinite(sig_heading[first]) else float(sig_e)
+    r_h = np.full(n, gspec.heading_white_sigma_rad**2)
+    res_h = rts_smooth3(
+        f01=-dt,
+        f02=np.zeros(n - 1),
+        f22=phi_e,
+        g=np.where(covered, d_theta, 0.0),
+        q=q_h,
+        h2=1.0,
+        z=z_h,
+        r=r_h,
+        x0=(x0_psi, 0.0, 0.0),
+        p0=(1.0, ispec.yaw_rate_bias_sigma_rps**2, sig_e0**2),
+    )
+    psi = res_h.x[:, 0]
+    bias = res_h.x[:, 1]
+    var_psi = res_h.var[:, 0]
+    r_hat = r_ep - bias
+    bias_imu = np.interp(imu.t, t, bias)
+    r_imu = imu.yaw_rate - bias_imu
+
+    # ---- course channel: [ν, s_a, c_a] ----------------------------------------------------
+    c, s = np.cos(psi), np.sin(psi)
+    ve, vn = gnss.velocity_east, gnss.velocity_north
+    vx_a = c * ve + s * vn
+    vy_a = -s * ve + c * vn
+    vx_cg, vy_cg = transfer_velocity(vx_a, vy_a, r_hat, geometry.a_xy, (0.0, 0.0))
+    speed_cg = np.hypot(vx_cg, vy_cg)
+    beta_m = np.asarray(sideslip_from_velocity(vx_cg, vy_cg), dtype=float)
+    course_bits = InvalidReason.NO_DATA | InvalidReason.LOW_SPEED | InvalidReason.A_NOT_FIXED
+    course_bits |= InvalidReason.NO_YAW_RATE
+    c_ok = ((reasons & int(course_bits)) == 0) & np.isfinite(beta_m)
+    z_c = np.where(c_ok, psi + beta_m, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r_c = np.where(c_ok, (gspec.velocity_sigma_mps / speed_a) ** 2, np.nan)
+    # speed on the IMU time base (held positive; only used where the course is measured)
+    v_fill = np.where(c_ok, speed_cg, np.nan)
+    if np.any(c_ok):
+        v_fill = np.interp(t, t[c_ok], speed_cg[c_ok])
+    else:
+        v_fill = np.full(n, 1.0)
+    v_fill = np.maximum(v_fill, 0.5)
+    v_imu = np.interp(imu.t, t, v_fill)
+    inv_v = 1.0 / v_imu
+    w_inc, _ = _increments(imu.t, inv_v, t, max_gap_s)
+    q_c = np.empty((n - 1, 3))
+    v_mid = 0.5 * (v_fill[1:] + v_fill[:-1])
+    if imu.ay is not None:
+        # lateral acceleration of the CG in the horizontal plane
+        kphi = ispec.roll_gain_rad_per_mps2
+        ay = imu.ay / (1.0 + G * kphi)
+        rx, ry = ispec.accel_xy
+        if rx or ry:
+            r_dot = np.gradient(r_imu, imu.t)
+            ay = ay - r_dot * rx + r_imu**2 * ry
+        # a_n = (a_y − a_t sin β)/cos β, with a_t the rate of change of the GNSS speed
+        a_t = np.gradient(v_fill, t)
+        if n >= 5:
+            a_t = np.convolve(np.pad(a_t, 2, mode="edge"), np.full(5, 0.2), mode="valid")
+        beta_i = np.interp(imu.t, t, np.where(np.isfinite(beta_m), beta_m, 0.0))
+        a_n = (ay - np.interp(imu.t, t, a_t) * np.sin(beta_i)) / np.cos(beta_i)
+        u_inc, a_cov = _increments(imu.t, a_n * inv_v, t, max_gap_s)
+        dens2 = ispec.ay_noise_density**2 + ispec.ay_model_density**2
+        q_c[:, 0] = np.where(a_cov, dens2 * dt / v_mid**2, (2.0 * dt) ** 2)
+        q_c[:, 1] = ispec.ay_scale_rw**2 * dt + 1e-18
+        q_c[:, 2] = ispec.ay_bias_rw**2 * dt + 1e-18
+        f01, f02 = np.where(a_cov, u_inc, 0.0), np.where(a_cov, w_inc, 0.0)
+        g_c = np.where(a_cov, u_inc, 0.0)
+        p0_c = (1.0, ispec.ay_scale_sigma**2, ispec.ay_bias_sigma_mps2**2)
+    else:
+        # ν̇ = r̂ + β̇ with β̇ white
+        r_inc, r_cov = _increments(imu.t, r_imu, t, max_gap_s)
+        q_c[:, 0] = np.where(r_cov, ispec.beta_rate_density**2 * dt, (2.0 * dt) ** 2)
+        q_c[:, 1] = 1e-18
+        q_c[:, 2] = 1e-18
+        f01 = np.zeros(n - 1)
+        f02 = np.zeros(n - 1)
+        g_c = np.where(r_cov, r_inc, 0.0)
+        p0_c = (1.0, 1e-6, 1e-6)
+    first_c = int(np.argmax(c_ok)) if np.any(c_ok) else 0
+    nu_prior = float(z_c[first_c]) if np.any(c_ok) else float(psi[0])
+    # refer the prior back to epoch 0 along the prediction (diffuse anyway)
+    nu_prior -= float(np.sum(g_c[:first_c]))
+    res_c = rts_smooth3(
+        f01=f01, f02=f02, f22=np.ones(n - 1), g=g_c, q=q_c, h2=0.0, z=z_c, r=np.where(c_ok, r_c, 1.0),
+        x0=(nu_prior, 0.0, 0.0), p0=p0_c,
+    )
+    nu = res_c.x[:, 0]
+    beta = np.asarray(wrap_pi(nu - psi), dtype=float)
+    sigma = np.sqrt(res_c.var[:, 0] + var_psi)
+    diagnostics = {
+        "heading_nis_mean": float(np.nanmean(res_h.nis)) if np.any(np.isfinite(res_h.nis)) else math.nan,
+        "course_nis_mean": float(np.nanmean(res_c.nis)) if np.any(np.isfinite(res_c.nis)) else math.nan,
+        "yaw_rate_bias_deg_s": math.degrees(float(np.median(bias))),
+        "ay_scale_error": float(np.median(res_c.x[:, 1])),
+        "ay_bias_mps2": float(np.median(res_c.x[:, 2])),
+        "median_sigma_heading_deg": math.degrees(float(np.median(np.sqrt(var_psi)))),
+        "median_sigma_course_deg": math.degrees(float(np.median(np.sqrt(res_c.var[:, 0])))),
+    }
+    return beta, sigma, r_hat, psi, speed_cg, diagnostics
+
+
+# --------------------------------------------------------------------------------------------
+# Optical sensor, tyre slip, cross-check
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class OpticalSideslip:
+    """Sideslip at the CG from an optical sensor (rad), on the sensor's (or a resampled) time base."""
+
+    t: FloatArray
+    beta: FloatArray
+    sigma: FloatArray
+    valid: BoolArray
+    sensor: str = "optical"
+
+
+def optical_sideslip(
+    t: npt.ArrayLike,
+    vx_mps: npt.ArrayLike,
+    vy_mps: npt.ArrayLike,
+    yaw_rate_rps: npt.ArrayLike,
+    sensor_xy_m: tuple[float, float],
+    *,
+    zero_rad: float = 0.0,
+    min_speed_mps: float = 10.0 / 3.6,
+    valid: npt.ArrayLike | None = None,
+    sigma_rad: float = math.radians(0.1),
+    sensor: str = "optical",
+) -> OpticalSideslip:
+    """Move a body-mounted optical sensor's velocity (vehicle axes, zero-corrected) to the CG.
+
+    ``zero_rad`` is the calibrated slip zero (:func:`calibration.mount.estimate_optical_zero`);
+    the corrected slip is measured − zero. The yaw rate must be on the same time base. A sensor
+    that reports slip angle and speed instead of vx, vy: pass speed·cos α and speed·sin α.
+    """
+    tt = check_time("optical.t", t)
+    n = tt.size
+    vx0, vy0 = as_1d("optical.vx", vx_mps, n), as_1d("optical.vy", vy_mps, n)
+    r = as_1d("optical.yaw_rate", yaw_rate_rps, n)
+    vx, vy = apply_optical_zero(vx0, vy0, zero_rad)
+    vx_cg, vy_cg = transfer_velocity(vx, vy, r, sensor_xy_m, (0.0, 0.0))
+    beta = np.asarray(sideslip_from_velocity(vx_cg, vy_cg), dtype=float)
+    ok = as_bool("optical.valid", valid, n) & np.isfinite(beta) & (np.hypot(vx_cg, vy_cg) >= min_speed_mps)
+    return OpticalSideslip(
+        t=tt,
+        beta=np.where(ok, beta, np.nan),
+        sigma=np.where(ok, sigma_rad, np.nan),
+        valid=ok,
+        sensor=sensor,
+    )
+
+
+def tyre_slip_angles(
+    ref: ReferenceSideslip,
+    steer_rad: Mapping[str, npt.ArrayLike | float],
+) -> dict[str, FloatArray]:
+    """Tyre slip angle α = β_wheel − δ_wheel (rad) at each wheel point of ``ref``.
+
+    ``steer_rad`` maps a wheel point name (as given to :func:`reference_sideslip`'s ``points``) to
+    its road-wheel angle on ``ref.t`` (rad, + left); wheels not in the map (rear) have δ = 0. With
+    ISO 8855 signs the lateral tyre force is about −C·α.
+    """
+    out: dict[str, FloatArray] = {}
+    for name, beta_w in ref.points.items():
+        delta = as_1d(f"steer_rad[{name!r}]", steer_rad.get(name, 0.0), ref.t.size)
+        out[name] = np.asarray(wrap_pi(beta_w - delta), dtype=float)
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class CrossCheck:
+    """Agreement of two sideslip references on common epochs."""
+
+    n_compared: int
+    mean_diff_rad: float
+    rms_diff_rad: float
+    max_abs_diff_rad: float
+    fraction_disagree: float
+    """Fraction of compared epochs where |Δ| > k·√(σ_a² + σ_b²)."""
+    coverage_factor: float
+    segments: tuple[tuple[float, float], ...]
+    """(t_start, t_stop) in s of runs of disagreement at least ``min_segment_s`` long."""
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-able view (angles in degrees)."""
+        return {
+            "n_compared": self.n_compared,
+            "mean_diff_deg": math.degrees(self.mean_diff_rad),
+            "rms_diff_deg": math.degrees(self.rms_diff_rad),
+            "max_abs_diff_deg": math.degrees(self.max_abs_diff_rad),
+            "fraction_disagree": self.fraction_disagree,
+            "coverage_factor": self.coverage_factor,
+            "segments_s": [list(s) for s in self.segments],
+        }
+
+
+def cross_check(
+    t: npt.ArrayLike,
+    beta_a: npt.ArrayLike,
+    sigma_a: npt.ArrayLike,
+    beta_b: npt.ArrayLike,
+    sigma_b: npt.ArrayLike,
+    *,
+    coverage_factor: float = 2.0,
+    min_segment_s: float = 0.5,
+) -> CrossCheck:
+    """Compare two references on the same epochs (e.g. GNSS and optical at the CG, or at a wheel).
+
+    Raises:
+        AnalysisError: no common valid epoch.
+    """
+    tt = check_time("t", t)
+    n = tt.size
+    a, b = as_1d("beta_a", beta_a, n), as_1d("beta_b", beta_b, n)
+    sa, sb = as_1d("sigma_a", sigma_a, n), as_1d("sigma_b", sigma_b, n)
+    d = np.asarray(wrap_pi(a - b), dtype=float)
+    u = coverage_factor * np.sqrt(sa**2 + sb**2)
+    ok = np.isfinite(d) & np.isfinite(u)
+    if not np.any(ok):
+        raise AnalysisError("cross_check: the two references have no common valid epoch")
+    bad = np.zeros(n, dtype=bool)
+    bad[ok] = np.abs(d[ok]) > u[ok]
+    period = float(np.median(np.diff(tt))) if n > 1 else 0.0
+    segs = tuple(
+        (float(tt[i]), float(tt[j - 1]))
+        for i, j in runs(bad)
+        if (j - i) * period >= min_segment_s
+    )
+    dd = d[ok]
+    return CrossCheck(
+        n_compared=int(dd.size),
+        mean_diff_rad=float(np.mean(dd)),
+        rms_diff_rad=float(np.sqrt(np.mean(dd * dd))),
+        max_abs_diff_rad=float(np.max(np.abs(dd))),
+        fraction_disagree=float(np.count_nonzero(bad) / dd.size),
+        coverage_factor=coverage_factor,
+        segments=segs,
+    )

@@ -1,0 +1,1198 @@
+"""What is in a recorded session: the summary behind ``rig info`` (text for people, JSON for scripts).
+
+:func:`read_session_info` reads every part of a session once and returns a :class:`SessionInfo`
+(frozen): time span, parts, topics with counts, rates and gaps, devices, device gaps (disconnects,
+gap and overflow events), time-base quality from ``/rig/timebase``, calibration in force, events,
+attachments. :func:`info_to_json` and :func:`format_info` are pure functions of it.
+
+Fast path: a finalized part is read from its summary section (statistics, chunk indexes, metadata
+and attachment indexes) and its message-index records, which give every message's log time without
+decompressing a chunk; only the chunks holding ``/rig/events``, ``/rig/timebase`` and
+``/relay/stats`` messages are decompressed. A part without a usable summary or message index (a
+crashed part, a ``rig recover`` copy) is scanned instead (:func:`rig.recorder.reader.scan_part`,
+which stops at the last complete record); the part says which way it was read (``read_via``).
+
+Gaps: for each periodic topic the typical interval between consecutive log times is the
+time-weighted median interval (the interval length below which half of the topic's span is
+covered), which is the burst period for bursty streams (corrections once a second, read in several
+reads) and the message period for regular ones; an interval longer than
+``max(gap_factor × typical interval, min_gap_s)`` is a gap. Event-like topics (``/rig/events``,
+``/rig/timebase``, MARKPOS/MARKTIME) are not checked.
+
+JSON document (``rig info --json``), format ``vsc-rig.info`` version 1. Stable keys; times are int ns
+on the session's common time base (UTC ns since the Unix epoch) plus ISO 8601 UTC text; ``null``
+where a value is unknown:
+
+- ``format``, ``version``, ``session`` (name), ``path``, ``start_ns``, ``end_ns``, ``start_utc``,
+  ``end_utc``, ``duration_s`` (the span of the recorded data: every topic but ``/rig/events``, whose
+  times may come from the host clock before the time base is known), ``messages``, ``truncated``
+  (a part was not finalized or damaged);
+- ``recorder``: the recorder's metadata of the first part (software, version, host, compression, ...);
+- ``parts``: [{``index``, ``file``, ``bytes``, ``messages``, ``finalized``, ``read_via`` (summary|scan),
+  ``problem``, ``problem_kind`` (truncated|corrupt|null), ``end_reason``, ``start_ns``, ``end_ns``}];
+- ``topics``: [{``topic``, ``schema``, ``encoding``, ``raw``, ``messages``, ``first_ns``, ``last_ns``,
+  ``rate_hz``, ``typical_interval_s``, ``max_interval_s``, ``gap_threshold_s``, ``gap_count``,
+  ``gap_total_s``, ``gaps``: [{``start_ns``, ``end_ns``, ``duration_s``}]}] (at most
+  ``max_gaps_listed`` gaps listed per topic, all counted);
+- ``devices``: [{``name``, ``kind`` (gnss|can|daq|optical|relay|sim|source), ``topics``, ``messages``,
+  ``written``, ``dropped``, ``connects``, ``disconnects``, ``errors``, ``warnings``}];
+- ``device_gaps``: [{``device``, ``kind`` (disconnect|gap|overflow), ``start_ns``, ``end_ns``,
+  ``duration_s``, ``open`` (no reconnect before the end), ``dropped``, ``text``}];
+- ``timebase``: {``records``, ``clocks``: [the last ``/rig/timebase`` record of each clock: ``clock``,
+  ``method``, ``reference``, ``status``, ``n``, ``span_s``, ``offset_ns``, ``drift_ppm``, ``jitter_ns``,
+  ``latency_p50_ns``, ``latency_p95_ns``, ``rms_ns``, ``max_abs_ns``, ``leap_seconds``, ``time_ns``,
+  ``records``]};
+- ``calibration``: the calibration metadata in force, flat ``{key: value text}`` as recorded;
+- ``events``: {``total``, ``by_kind``, ``by_severity``, ``problems`` (warnings and errors), ``marks``:
+  [{``time_ns``, ``time_utc``, ``kind``, ``severity``, ``source``, ``text``}]};
+- ``attachments``: [{``name``, ``media_type``, ``bytes``}];
+- ``warnings``: [text] (truncated or damaged parts, undecodable records).
+"""
+
+from __future__ import annotations
+
+import json
+import mmap
+import os
+import struct
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from enum import StrEnum
+from io import BytesIO
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from mcap.data_stream import ReadDataStream
+from mcap.reader import make_reader
+from mcap.records import Metadata
+
+import rig.topics as T  # noqa: N812 - the module is used as a namespace of topic names
+from rig.recorder.reader import MCAP_MAGIC, ProblemKind, find_parts, part_index, scan_part, session_base
+from vsccore.errors import SessionFileError
+
+__all__ = [
+    "INFO_FORMAT",
+    "INFO_JSON_KEYS",
+    "INFO_VERSION",
+    "AttachmentInfo",
+    "ClockInfo",
+    "DeviceGap",
+    "DeviceGapKind",
+    "DeviceInfo",
+    "EventLine",
+    "EventSummary",
+    "Gap",
+    "PartInfo",
+    "ReadVia",
+    "SessionInfo",
+    "TopicInfo",
+    "format_info",
+    "format_utc",
+    "info_to_json",
+    "read_session_info",
+]
+
+INFO_FORMAT = "vsc-rig.info"
+INFO_VERSION = 1
+INFO_JSON_KEYS = (
+    "format",
+    "version",
+    "session",
+    "path",
+    "start_ns",
+    "end_ns",
+    "start_utc",
+    "end_utc",
+    "duration_s",
+    "messages",
+    "truncated",
+    "recorder",
+    "parts",
+    "topics",
+    "devices",
+    "device_gaps",
+    "timebase",
+    "calibration",
+    "events",
+    "attachments",
+    "warnings",
+)
+"""Top-level keys of the JSON document, in order (documented in this module's docstring)."""
+
+_NS = 1_000_000_000
+_PAYLOAD_TOPICS = frozenset({T.TOPIC_EVENTS, T.TOPIC_TIMEBASE, T.TOPIC_RELAY_STATS})
+"""Topics whose messages ``rig info`` decodes (small, JSON)."""
+_NOT_PERIODIC = frozenset({"/rig/events", "/rig/timebase", "/gnss/{receiver}/markpos", "/gnss/{receiver}/marktime"})
+"""Topic families that are not periodic: no gap check."""
+_EVENT_SLACK_NS = 60 * _NS
+"""Events further than this outside the data span are reported (their clock is suspect)."""
+_RECORDER_PER_PART_KEYS = frozenset({"part_index", "part_file", "previous_part", "started_host_ns", "sources"})
+_DEVICE_KINDS = {"receiver": "gnss", "bus": "can", "device": "daq", "sensor": "optical"}
+
+_REC = struct.Struct("<BQ")
+_MSG_INDEX_HEAD = struct.Struct("<HI")
+_MSG_HEAD = struct.Struct("<HIQQ")
+_CHUNK_HEAD = struct.Struct("<QQQI")
+_OP_CHUNK = 0x06
+_OP_MESSAGE = 0x05
+_OP_MESSAGE_INDEX = 0x07
+_OP_FOOTER = 0x02
+_FOOTER_RECORD = 1 + 8 + 8 + 8 + 4
+
+
+# ---------------------------------------------------------------------------------------------
+# Result types
+# ---------------------------------------------------------------------------------------------
+
+
+class ReadVia(StrEnum):
+    """How a part was read."""
+
+    SUMMARY = "summary"
+    """Summary section and message indexes (finalized part; fast)."""
+    SCAN = "scan"
+    """Record by record, every chunk decompressed (crashed part, recovered copy without message index)."""
+
+
+@dataclass(frozen=True, slots=True)
+class PartInfo:
+    """One part file of the session."""
+
+    index: int
+    path: Path
+    size_bytes: int
+    messages: int
+    finalized: bool
+    read_via: ReadVia
+    problem: str | None = None
+    problem_kind: ProblemKind | None = None
+    end_reason: str | None = None
+    """Why the recorder ended the part (``stop``, ``rollover (size)``, ``disk_full``), from its part-end record."""
+    start_ns: int | None = None
+    end_ns: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Gap:
+    """An interval between two consecutive messages of a topic that is much longer than its period."""
+
+    start_ns: int
+    """Log time of the last message before the gap."""
+    end_ns: int
+    """Log time of the first message after it."""
+
+    @property
+    def duration_s(self) -> float:
+        return (self.end_ns - self.start_ns) / _NS
+
+
+@dataclass(frozen=True, slots=True)
+class TopicInfo:
+    """Counts, rate and gaps of one topic over all parts."""
+
+    topic: str
+    schema: str
+    encoding: str
+    raw: bool
+    messages: int
+    first_ns: int | None = None
+    last_ns: int | None = None
+    rate_hz: float | None = None
+    """Mean rate over the topic's own span: (messages − 1) / (last − first)."""
+    typical_interval_s: float | None = None
+    """Time-weighted median interval between consecutive messages (see the module docstring)."""
+    max_interval_s: float | None = None
+    gap_threshold_s: float | None = None
+    """Intervals longer than this are gaps (None: the topic is not checked)."""
+    gap_count: int = 0
+    gap_total_s: float = 0.0
+    gaps: tuple[Gap, ...] = ()
+    """The first gaps (at most ``max_gaps_listed``); ``gap_count`` counts all."""
+
+
+class DeviceGapKind(StrEnum):
+    """Where a device gap comes from."""
+
+    DISCONNECT = "disconnect"
+    """A disconnect event, closed by the next connect event of the same device (or open to the end)."""
+    GAP = "gap"
+    """A gap event written by the device's code (``Source.gap``)."""
+    OVERFLOW = "overflow"
+    """Messages dropped because the device's queue was full."""
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceGap:
+    """A period in which a device delivered nothing (or lost messages), from ``/rig/events``."""
+
+    device: str
+    kind: DeviceGapKind
+    start_ns: int
+    end_ns: int | None
+    text: str
+    open: bool = False
+    """A disconnect with no reconnect before the end of the session (``end_ns`` is the session end)."""
+    dropped: int | None = None
+
+    @property
+    def duration_s(self) -> float | None:
+        return None if self.end_ns is None else (self.end_ns - self.start_ns) / _NS
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceInfo:
+    """A device of the session: from topic names (receivers, buses, DAQs, sensors) and recorder sources."""
+
+    name: str
+    kind: str
+    topics: tuple[str, ...]
+    messages: int
+    """Messages on its topics."""
+    written: int | None = None
+    """Messages its recorder source wrote (from the part-end records; None when not known)."""
+    dropped: int = 0
+    """Messages lost because its queue was full (part-end records and overflow events)."""
+    connects: int = 0
+    disconnects: int = 0
+    errors: int = 0
+    warnings: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class ClockInfo:
+    """The last ``/rig/timebase`` record of one clock."""
+
+    clock: str
+    method: str
+    reference: str
+    status: str
+    n: int
+    span_s: float | None
+    offset_ns: int | None
+    drift_ppm: float | None
+    jitter_ns: float | None
+    latency_p50_ns: float | None
+    latency_p95_ns: float | None
+    rms_ns: float | None
+    max_abs_ns: float | None
+    leap_seconds: int | None
+    time_ns: int
+    """Log time of the record."""
+    records: int
+    """Records of this clock in the session."""
+
+
+@dataclass(frozen=True, slots=True)
+class EventLine:
+    """One event, for listing."""
+
+    time_ns: int
+    kind: str
+    severity: str
+    source: str
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class EventSummary:
+    """``/rig/events`` in short."""
+
+    total: int = 0
+    by_kind: Mapping[str, int] = field(default_factory=dict)
+    by_severity: Mapping[str, int] = field(default_factory=dict)
+    problems: tuple[EventLine, ...] = ()
+    """Warnings and errors, in time order."""
+    marks: tuple[EventLine, ...] = ()
+    """Operator marks, in time order."""
+
+
+@dataclass(frozen=True, slots=True)
+class AttachmentInfo:
+    name: str
+    media_type: str
+    size_bytes: int
+
+
+@dataclass(frozen=True, slots=True)
+class SessionInfo:
+    """Everything ``rig info`` reports about one session."""
+
+    path: Path
+    name: str
+    parts: tuple[PartInfo, ...]
+    start_ns: int | None
+    end_ns: int | None
+    messages: int
+    recorder: Mapping[str, str]
+    topics: tuple[TopicInfo, ...]
+    devices: tuple[DeviceInfo, ...]
+    device_gaps: tuple[DeviceGap, ...]
+    clocks: tuple[ClockInfo, ...]
+    timebase_records: int
+    calibration: Mapping[str, str]
+    events: EventSummary
+    attachments: tuple[AttachmentInfo, ...]
+    warnings: tuple[str, ...]
+
+    @property
+    def duration_s(self) -> float | None:
+        if self.start_ns is None or self.end_ns is None:
+            return None
+        return (self.end_ns - self.start_ns) / _NS
+
+    @property
+    def truncated(self) -> bool:
+        """A part was not finalized or is damaged (it was read up to its last complete record)."""
+        return any(p.problem is not None or not p.finalized for p in self.parts)
+
+    def topic(self, name: str) -> TopicInfo:
+        """The topic ``name`` (KeyError naming the topics present)."""
+        for t in self.topics:
+            if t.topic == name:
+                return t
+        raise KeyError(f"{self.path}: no topic {name!r}; topics: {[t.topic for t in self.topics]}")
+
+    def device(self, name: str) -> DeviceInfo:
+        for d in self.devices:
+            if d.name == name:
+                return d
+        raise KeyError(f"{self.path}: no device {name!r}; devices: {[d.name for d in self.devices]}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading parts
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class _PartRead:
+    """What one part contributed (internal; times and payloads by topic)."""
+
+    path: Path
+    size: int
+    via: ReadVia
+    finalized: bool
+    problem: str | None = None
+    problem_kind: ProblemKind | None = None
+    start_ns: int | None = None
+    end_ns: int | None = None
+    topics: dict[str, tuple[str, str]] = field(default_factory=dict)
+    """topic → (schema name, message encoding)."""
+    counts: dict[str, int] = field(default_factory=dict)
+    times: dict[str, list[npt.NDArray[np.int64]]] = field(default_factory=dict)
+    payloads: dict[str, list[tuple[int, bytes]]] = field(default_factory=dict)
+    metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
+    attachments: list[AttachmentInfo] = field(default_factory=list)
+
+    @property
+    def messages(self) -> int:
+        return sum(self.counts.values())
+
+
+class _NoIndexError(Exception):
+    """The part has no usable summary or message index (it is scanned instead)."""
+
+
+def _ends_with_footer(mm: mmap.mmap) -> bool:
+    size = len(mm)
+    if size < 2 * len(MCAP_MAGIC) + _FOOTER_RECORD or mm[size - len(MCAP_MAGIC) :] != MCAP_MAGIC:
+        return False
+    op, ln = _REC.unpack_from(mm, size - len(MCAP_MAGIC) - _FOOTER_RECORD)
+    return bool(op == _OP_FOOTER and ln == _FOOTER_RECORD - 9)
+
+
+def _decompress(compression: str, raw: bytes, usize: int, where: str) -> bytes:
+    try:
+        if compression == "zstd":
+            import zstandard
+
+            return zstandard.ZstdDecompressor().decompress(raw, max_output_size=usize)
+        if compression == "lz4":
+            import lz4.frame
+
+            out: bytes = lz4.frame.decompress(raw)
+            return out
+        if compression == "":
+            return raw
+    except Exception as exc:  # the libraries raise their own error types for damaged input
+        raise _NoIndexError(f"{where}: cannot decompress {compression} chunk: {exc}") from exc
+    raise _NoIndexError(f"{where}: unsupported chunk compression {compression!r}")
+
+
+def _read_indexed(path: Path) -> _PartRead:
+    """Read a finalized part from its summary and message indexes (raises _NoIndexError otherwise)."""
+    with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        if size < 2 * len(MCAP_MAGIC) + _FOOTER_RECORD:
+            raise _NoIndexError("too short to be finalized")
+        mm = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        try:
+            if mm[: len(MCAP_MAGIC)] != MCAP_MAGIC or not _ends_with_footer(mm):
+                raise _NoIndexError("no footer")
+            try:
+                summary = make_reader(f).get_summary()
+            except Exception as exc:  # mcap raises assorted error types for a damaged summary
+                raise _NoIndexError(f"unreadable summary: {exc}") from exc
+            if summary is None or summary.statistics is None:
+                raise _NoIndexError("no summary statistics")
+            try:
+                return _from_summary(path, size, mm, summary)
+            except (struct.error, ValueError, IndexError, KeyError) as exc:  # damaged index: scan instead
+                raise _NoIndexError(f"unusable index: {exc}") from exc
+        finally:
+            mm.close()
+
+
+def _from_summary(path: Path, size: int, mm: mmap.mmap, summary: Any) -> _PartRead:
+    stats = summary.statistics
+    part = _PartRead(path=path, size=size, via=ReadVia.SUMMARY, finalized=True)
+    channels = summary.channels
+    for ch in channels.values():
+        schema = summary.schemas.get(ch.schema_id)
+        part.topics[ch.topic] = (schema.name if schema is not None else "", ch.message_encoding)
+    times: dict[int, list[npt.NDArray[np.int64]]] = {}
+    wanted = {cid for cid, ch in channels.items() if ch.topic in _PAYLOAD_TOPICS}
+    for ci in summary.chunk_indexes:
+        payload_entries: list[tuple[int, int, int]] = []  # (channel, log time, offset in chunk)
+        for cid, off in ci.message_index_offsets.items():
+            if cid not in channels or off + 15 > size:
+                raise _NoIndexError(f"message index at {off} names unknown channel {cid} or lies outside the file")
+            op, ln = _REC.unpack_from(mm, off)
+            rcid, rlen = _MSG_INDEX_HEAD.unpack_from(mm, off + 9)
+            if op != _OP_MESSAGE_INDEX or rcid != cid or rlen % 16 or off + 15 + rlen > size or 6 + rlen > ln:
+                raise _NoIndexError(f"bad message index record at offset {off}")
+            pairs = np.frombuffer(bytes(mm[off + 15 : off + 15 + rlen]), dtype="<u8").astype(np.int64)
+            log_t = pairs[0::2]
+            times.setdefault(cid, []).append(log_t)
+            if cid in wanted:
+                payload_entries.extend((cid, int(t), int(o)) for t, o in zip(log_t, pairs[1::2], strict=True))
+        if payload_entries:
+            data = _chunk_records(mm, ci)
+            for cid, log_t_i, off in payload_entries:
+                if off + 9 + 22 > len(data):
+                    raise _NoIndexError(f"chunk at {ci.chunk_start_offset}: message offset {off} outside the chunk")
+                op, ln = _REC.unpack_from(data, off)
+                mcid, _seq, _lt, _pt = _MSG_HEAD.unpack_from(data, off + 9)
+                if op != _OP_MESSAGE or mcid != cid:
+                    raise _NoIndexError(f"chunk at {ci.chunk_start_offset}: no message of channel {cid} at {off}")
+                topic = channels[cid].topic
+                part.payloads.setdefault(topic, []).append((log_t_i, bytes(data[off + 9 + 22 : off + 9 + ln])))
+    for cid, n in stats.channel_message_counts.items():
+        got = sum(a.size for a in times.get(cid, []))
+        if got != n:
+            raise _NoIndexError(f"channel {cid}: message index has {got} entries, statistics say {n}")
+    for cid, arrays in times.items():
+        topic = channels[cid].topic
+        part.times.setdefault(topic, []).extend(arrays)
+        part.counts[topic] = part.counts.get(topic, 0) + sum(a.size for a in arrays)
+    if stats.message_count:
+        part.start_ns, part.end_ns = int(stats.message_start_time), int(stats.message_end_time)
+    for mi in summary.metadata_indexes:
+        body = bytes(mm[mi.offset + 9 : mi.offset + mi.length])
+        md = Metadata.read(ReadDataStream(BytesIO(body)))
+        part.metadata.append((md.name, dict(md.metadata)))
+    for ai in summary.attachment_indexes:
+        part.attachments.append(AttachmentInfo(ai.name, ai.media_type, int(ai.data_size)))
+    return part
+
+
+def _chunk_records(mm: mmap.mmap, ci: Any) -> bytes:
+    """The decompressed records of the chunk that ``ci`` (a ChunkIndex) points at."""
+    pos = ci.chunk_start_offset
+    op, _ln = _REC.unpack_from(mm, pos)
+    if op != _OP_CHUNK:
+        raise _NoIndexError(f"no chunk at offset {pos}")
+    body = pos + 9
+    _t0, _t1, usize, _crc = _CHUNK_HEAD.unpack_from(mm, body)
+    (clen,) = struct.unpack_from("<I", mm, body + 28)
+    comp = bytes(mm[body + 32 : body + 32 + clen]).decode()
+    (rlen,) = struct.unpack_from("<Q", mm, body + 32 + clen)
+    start = body + 40 + clen
+    return _decompress(comp, bytes(mm[start : start + rlen]), usize, f"chunk at offset {pos}")
+
+
+def _read_scanned(path: Path) -> _PartRead:
+    """Read a part record by record (tolerates a truncated or damaged part)."""
+    scan = scan_part(path)
+    part = _PartRead(
+        path=path,
+        size=scan.size,
+        via=ReadVia.SCAN,
+        finalized=scan.finalized and scan.problem is None,
+        problem=scan.problem,
+        problem_kind=scan.problem_kind,
+        start_ns=scan.message_start_time,
+        end_ns=scan.message_end_time,
+    )
+    for cid, ch in scan.channels.items():
+        schema = scan.schemas.get(ch.schema_id)
+        part.topics[ch.topic] = (schema.name if schema is not None else "", ch.message_encoding)
+        n = scan.channel_counts.get(cid, 0)
+        if n:
+            part.counts[ch.topic] = part.counts.get(ch.topic, 0) + n
+    for topic, tm in scan.topics.items():
+        if len(tm):
+            part.times.setdefault(topic, []).append(np.asarray(tm.log_time, dtype=np.int64))
+        if topic in _PAYLOAD_TOPICS:
+            part.payloads.setdefault(topic, []).extend(zip(tm.log_time, tm.data, strict=True))
+    for md, _ref in scan.metadata:
+        part.metadata.append((md.name, dict(md.metadata)))
+    for att, _ref in scan.attachments:
+        part.attachments.append(AttachmentInfo(att.name, att.media_type, len(att.data)))
+    return part
+
+
+def _read_part(path: Path) -> _PartRead:
+    try:
+        return _read_indexed(path)
+    except _NoIndexError:
+        return _read_scanned(path)
+    except OSError as exc:
+        raise SessionFileError(f"{path}: cannot read session part: {exc}") from exc
+
+
+# ---------------------------------------------------------------------------------------------
+# Building the summary
+# ---------------------------------------------------------------------------------------------
+
+
+def read_session_info(
+    path: Path | str,
+    *,
+    gap_factor: float = 5.0,
+    min_gap_s: float = 0.5,
+    max_gaps_listed: int = 100,
+) -> SessionInfo:
+    """Summarize the session at ``path`` (its base, any part file, or a directory holding one session).
+
+    Every part is read; a truncated or damaged part is read up to its last complete record and
+    noted in :attr:`SessionInfo.warnings` (never raised). Raises
+    :class:`~vsccore.errors.SessionFileError` when no part is found, a part in the sequence is
+    missing, or a file is not MCAP at all.
+    """
+    if gap_factor <= 1.0 or min_gap_s < 0:
+        raise ValueError(f"gap_factor must be > 1 and min_gap_s >= 0, got {gap_factor}, {min_gap_s}")
+    files = find_parts(path)
+    parts: list[_PartRead] = []
+    for i, p in enumerate(files):
+        try:
+            parts.append(_read_part(p))
+        except SessionFileError as exc:
+            raise SessionFileError(f"{exc} (part {i + 1} of {len(files)})") from exc
+    warnings: list[str] = []
+    part_infos: list[PartInfo] = []
+    for i, pr in enumerate(parts):
+        ends = [md for name, md in pr.metadata if name == T.METADATA_PART_END]
+        end_reason = ends[-1].get("reason") if ends else None
+        idx = part_index(pr.path)
+        part_infos.append(
+            PartInfo(
+                index=idx if idx is not None else i,
+                path=pr.path,
+                size_bytes=pr.size,
+                messages=pr.messages,
+                finalized=pr.finalized,
+                read_via=pr.via,
+                problem=pr.problem,
+                problem_kind=pr.problem_kind,
+                end_reason=end_reason,
+                start_ns=pr.start_ns,
+                end_ns=pr.end_ns,
+            )
+        )
+        if pr.problem is not None:
+            where = f"{pr.path.name} (part {i + 1} of {len(parts)})"
+            if pr.problem_kind is ProblemKind.TRUNCATED:
+                note = "" if i == len(parts) - 1 else " — not the last part: later parts follow a crash"
+                warnings.append(f"{where}: truncated: {pr.problem}; read up to its last complete record{note}")
+            else:
+                warnings.append(f"{where}: damaged: {pr.problem}; read up to the damage")
+
+    metadata_first: dict[str, dict[str, str]] = {}
+    for pr in parts:
+        for name, md in pr.metadata:
+            if name != T.METADATA_PART_END and name not in metadata_first:
+                metadata_first[name] = md
+    recorder = {k: v for k, v in metadata_first.get(T.METADATA_RECORDER, {}).items()
+                if k not in _RECORDER_PER_PART_KEYS}
+
+    topics = _topics(parts, gap_factor, min_gap_s, max_gaps_listed)
+    start_ns, end_ns = _span(parts, topics)
+    events, event_warnings = _events(parts)
+    warnings.extend(event_warnings)
+    if start_ns is not None and end_ns is not None:
+        far = [t for t, _e in events if t < start_ns - _EVENT_SLACK_NS or t > end_ns + _EVENT_SLACK_NS]
+        if far:
+            worst = max(max(start_ns - t, t - end_ns) for t in far) / _NS
+            warnings.append(f"{T.TOPIC_EVENTS}: {len(far)} events lie outside the recorded data by up to {worst:.0f} s "
+                            "(host clock not on the common time base when they were written?)")
+    clocks, n_tb, tb_warnings = _timebase(parts)
+    warnings.extend(tb_warnings)
+    devices = _devices(parts, topics, events)
+    device_gaps = _device_gaps(events, end_ns)
+    attachments: list[AttachmentInfo] = []
+    seen: set[str] = set()
+    for pr in parts:
+        for a in pr.attachments:
+            if a.name not in seen:
+                seen.add(a.name)
+                attachments.append(a)
+    base = session_base(files[0]) if part_index(files[0]) is not None else files[0]
+    return SessionInfo(
+        path=base,
+        name=recorder.get("session") or base.name,
+        parts=tuple(part_infos),
+        start_ns=start_ns,
+        end_ns=end_ns,
+        messages=sum(p.messages for p in parts),
+        recorder=recorder,
+        topics=topics,
+        devices=devices,
+        device_gaps=device_gaps,
+        clocks=clocks,
+        timebase_records=n_tb,
+        calibration=dict(metadata_first.get(T.METADATA_CALIBRATION, {})),
+        events=_event_summary(events),
+        attachments=tuple(attachments),
+        warnings=tuple(warnings),
+    )
+
+
+def _span(parts: Sequence[_PartRead], topics: Sequence[TopicInfo]) -> tuple[int | None, int | None]:
+    """First and last log time of the data (events excluded; all messages if there is nothing else)."""
+    data = [t for t in topics if t.first_ns is not None and t.last_ns is not None and t.topic != T.TOPIC_EVENTS]
+    if data:
+        return min(t.first_ns for t in data if t.first_ns is not None), max(
+            t.last_ns for t in data if t.last_ns is not None)
+    starts = [p.start_ns for p in parts if p.start_ns is not None]
+    ends = [p.end_ns for p in parts if p.end_ns is not None]
+    return (min(starts) if starts else None), (max(ends) if ends else None)
+
+
+def _family(topic: str) -> tuple[T.TopicSpec | None, dict[str, str]]:
+    try:
+        return T.spec_for_topic(topic)
+    except ValueError:
+        return None, {}
+
+
+def _topics(parts: Sequence[_PartRead], gap_factor: float, min_gap_s: float, max_listed: int) -> tuple[TopicInfo, ...]:
+    names: dict[str, tuple[str, str]] = {}
+    for pr in parts:
+        for topic, se in pr.topics.items():
+            names.setdefault(topic, se)
+    out: list[TopicInfo] = []
+    for topic in sorted(names):
+        schema, encoding = names[topic]
+        spec, _params = _family(topic)
+        count = sum(pr.counts.get(topic, 0) for pr in parts)
+        arrays = [a for pr in parts for a in pr.times.get(topic, [])]
+        t = np.sort(np.concatenate(arrays)) if arrays else np.zeros(0, dtype=np.int64)
+        raw = spec.raw if spec is not None else encoding == T.BINARY_ENCODING
+        if t.size == 0:
+            out.append(TopicInfo(topic, schema, encoding, raw, count))
+            continue
+        first, last = int(t[0]), int(t[-1])
+        rate = (t.size - 1) / ((last - first) / _NS) if t.size > 1 and last > first else None
+        typical = max_iv = threshold = None
+        gaps: tuple[Gap, ...] = ()
+        gap_count, gap_total = 0, 0.0
+        if t.size > 1:
+            d = np.diff(t)
+            typical = _typical_interval(d) / _NS
+            max_iv = float(d.max()) / _NS
+            periodic = spec is None or spec.pattern not in _NOT_PERIODIC
+            if periodic and t.size >= 5:
+                threshold = max(gap_factor * typical, min_gap_s)
+                where = np.flatnonzero(d > threshold * _NS)
+                gap_count = int(where.size)
+                gap_total = float(d[where].sum()) / _NS
+                gaps = tuple(Gap(int(t[i]), int(t[i + 1])) for i in where[:max_listed].tolist())
+        out.append(TopicInfo(topic, schema, encoding, raw, count, first, last, rate, typical, max_iv, threshold,
+                             gap_count, gap_total, gaps))
+    return tuple(out)
+
+
+def _typical_interval(d: npt.NDArray[np.int64]) -> float:
+    """The interval length below which half of the total time is covered (a time-weighted median)."""
+    s = np.sort(d)
+    cum = np.cumsum(s)
+    if cum[-1] <= 0:
+        return 0.0
+    return float(s[int(np.searchsorted(cum, 0.5 * cum[-1]))])
+
+
+def _events(parts: Sequence[_PartRead]) -> tuple[list[tuple[int, T.Event]], list[str]]:
+    out: list[tuple[int, T.Event]] = []
+    bad = 0
+    for pr in parts:
+        for log_t, data in pr.payloads.get(T.TOPIC_EVENTS, []):
+            try:
+                out.append((int(log_t), T.Event.from_json(json.loads(data))))
+            except (ValueError, KeyError, TypeError):
+                bad += 1
+    out.sort(key=lambda e: e[0])
+    warnings = [f"{T.TOPIC_EVENTS}: {bad} undecodable event messages skipped"] if bad else []
+    return out, warnings
+
+
+def _event_line(t: int, ev: T.Event) -> EventLine:
+    return EventLine(t, ev.kind.value, ev.severity.value, ev.source, ev.text)
+
+
+def _event_summary(events: Sequence[tuple[int, T.Event]]) -> EventSummary:
+    by_kind: dict[str, int] = {}
+    by_sev: dict[str, int] = {}
+    for _t, ev in events:
+        by_kind[ev.kind.value] = by_kind.get(ev.kind.value, 0) + 1
+        by_sev[ev.severity.value] = by_sev.get(ev.severity.value, 0) + 1
+    problems = tuple(_event_line(t, ev) for t, ev in events if ev.severity is not T.Severity.INFO)
+    marks = tuple(_event_line(t, ev) for t, ev in events if ev.kind is T.EventKind.MARK)
+    return EventSummary(len(events), dict(sorted(by_kind.items())), dict(sorted(by_sev.items())), problems, marks)
+
+
+def _opt_int(v: Any) -> int | None:
+    return int(v) if isinstance(v, int | float) and not isinstance(v, bool) else None
+
+
+def _opt_float(v: Any) -> float | None:
+    return float(v) if isinstance(v, int | float) and not isinstance(v, bool) else None
+
+
+def _timebase(parts: Sequence[_PartRead]) -> tuple[tuple[ClockInfo, ...], int, list[str]]:
+    records = sorted((int(t), d) for pr in parts for t, d in pr.payloads.get(T.TOPIC_TIMEBASE, []))
+    last: dict[str, tuple[int, dict[str, Any]]] = {}
+    counts: dict[str, int] = {}
+    bad = 0
+    for t, data in records:
+        try:
+            rec = json.loads(data)
+            clock = str(rec["clock"])
+        except (ValueError, KeyError, TypeError):
+            bad += 1
+            continue
+        last[clock] = (t, rec)
+        counts[clock] = counts.get(clock, 0) + 1
+    clocks = tuple(
+        ClockInfo(
+            clock=clock,
+            method=str(rec.get("method", "")),
+            reference=str(rec.get("reference", "")),
+            status=str(rec.get("status", "")),
+            n=_opt_int(rec.get("n")) or 0,
+            span_s=_opt_float(rec.get("span_s")),
+            offset_ns=_opt_int(rec.get("offset_ns")),
+            drift_ppm=_opt_float(rec.get("drift_ppm")),
+            jitter_ns=_opt_float(rec.get("jitter_ns")),
+            latency_p50_ns=_opt_float(rec.get("latency_p50_ns")),
+            latency_p95_ns=_opt_float(rec.get("latency_p95_ns")),
+            rms_ns=_opt_float(rec.get("rms_ns")),
+            max_abs_ns=_opt_float(rec.get("max_abs_ns")),
+            leap_seconds=_opt_int(rec.get("leap_seconds")),
+            time_ns=t,
+            records=counts[clock],
+        )
+        for clock, (t, rec) in sorted(last.items())
+    )
+    warnings = [f"{T.TOPIC_TIMEBASE}: {bad} undecodable records skipped"] if bad else []
+    return clocks, len(records), warnings
+
+
+def _devices(
+    parts: Sequence[_PartRead], topics: Sequence[TopicInfo], events: Sequence[tuple[int, T.Event]]
+) -> tuple[DeviceInfo, ...]:
+    kinds: dict[str, str] = {}
+    dev_topics: dict[str, list[str]] = {}
+    messages: dict[str, int] = {}
+    for ti in topics:
+        spec, params = _family(ti.topic)
+        if spec is None:
+            continue
+        if params:
+            key, name = next(iter(params.items()))
+            kind = _DEVICE_KINDS.get(key, "source")
+        elif ti.topic.startswith("/relay/"):
+            name, kind = "relay", "relay"
+        elif ti.topic == T.TOPIC_SIM_TRUTH:
+            name, kind = "sim", "sim"
+        else:
+            continue  # /rig/* are the rig's own topics
+        kinds.setdefault(name, kind)
+        dev_topics.setdefault(name, []).append(ti.topic)
+        messages[name] = messages.get(name, 0) + ti.messages
+    written: dict[str, int] = {}
+    dropped: dict[str, int] = {}
+    for pr in parts:
+        for name, md in pr.metadata:
+            if name == T.METADATA_RECORDER:
+                for src in filter(None, md.get("sources", "").split(",")):
+                    if src != "recorder.events":
+                        kinds.setdefault(src, "source")
+            elif name == T.METADATA_PART_END:
+                for key, value in md.items():
+                    if not key.startswith("source.") or not value.isdigit():
+                        continue
+                    src, _, what = key[len("source.") :].rpartition(".")
+                    if src == "recorder.events":
+                        continue
+                    kinds.setdefault(src, "source")
+                    # counters are cumulative over the session: the latest (largest) is the total
+                    if what == "written":
+                        written[src] = max(written.get(src, 0), int(value))
+                    elif what == "dropped":
+                        dropped[src] = max(dropped.get(src, 0), int(value))
+    counters: dict[str, dict[str, int]] = {}
+    overflow_drops: dict[str, int] = {}
+    for _t, ev in events:
+        c = counters.setdefault(ev.source, {"connect": 0, "disconnect": 0, "error": 0, "warning": 0})
+        if ev.kind is T.EventKind.CONNECT:
+            c["connect"] += 1
+        elif ev.kind is T.EventKind.DISCONNECT:
+            c["disconnect"] += 1
+        if ev.kind is T.EventKind.OVERFLOW:
+            n = _opt_int(ev.details.get("dropped"))
+            overflow_drops[ev.source] = overflow_drops.get(ev.source, 0) + (n or 0)
+        if ev.severity is T.Severity.ERROR:
+            c["error"] += 1
+        elif ev.severity is T.Severity.WARNING:
+            c["warning"] += 1
+    out: list[DeviceInfo] = []
+    for name in sorted(kinds):
+        c = counters.get(name, {})
+        out.append(
+            DeviceInfo(
+                name=name,
+                kind=kinds[name],
+                topics=tuple(dev_topics.get(name, ())),
+                messages=messages.get(name, 0),
+                written=written.get(name),
+                dropped=max(dropped.get(name, 0), overflow_drops.get(name, 0)),
+                connects=c.get("connect", 0),
+                disconnects=c.get("disconnect", 0),
+                errors=c.get("error", 0),
+                warnings=c.get("warning", 0),
+            )
+        )
+    return tuple(out)
+
+
+def _device_gaps(events: Sequence[tuple[int, T.Event]], session_end: int | None) -> tuple[DeviceGap, ...]:
+    out: list[DeviceGap] = []
+    open_since: dict[str, tuple[int, str]] = {}
+    for t, ev in events:
+        if ev.kind is T.EventKind.DISCONNECT:
+            start = ev.start_ns if ev.start_ns is not None else t
+            open_since.setdefault(ev.source, (start, ev.text))
+        elif ev.kind is T.EventKind.CONNECT and ev.source in open_since:
+            start, text = open_since.pop(ev.source)
+            end = ev.end_ns if ev.end_ns is not None else t
+            out.append(DeviceGap(ev.source, DeviceGapKind.DISCONNECT, start, max(end, start), text))
+        elif ev.kind is T.EventKind.GAP:
+            start = ev.start_ns if ev.start_ns is not None else t
+            out.append(DeviceGap(ev.source, DeviceGapKind.GAP, start, ev.end_ns, ev.text))
+        elif ev.kind is T.EventKind.OVERFLOW:
+            start = ev.start_ns if ev.start_ns is not None else t
+            out.append(DeviceGap(ev.source, DeviceGapKind.OVERFLOW, start, ev.end_ns, ev.text,
+                                 dropped=_opt_int(ev.details.get("dropped"))))
+    for source, (start, text) in open_since.items():
+        until = max(session_end, start) if session_end is not None else None
+        out.append(DeviceGap(source, DeviceGapKind.DISCONNECT, start, until, text, open=True))
+    out.sort(key=lambda g: (g.start_ns, g.device))
+    return tuple(out)
+
+
+# ---------------------------------------------------------------------------------------------
+# Output: JSON and text
+# ---------------------------------------------------------------------------------------------
+
+
+def format_utc(t_ns: int | None, *, date: bool = True) -> str:
+    """ISO 8601 UTC text of an int-ns time with milliseconds (``2025-06-15T12:00:00.123Z``); ``-`` for None."""
+    if t_ns is None:
+        return "-"
+    sec, ns = divmod(int(t_ns), _NS)
+    dt = datetime(1970, 1, 1, tzinfo=UTC) + timedelta(seconds=sec, microseconds=ns // 1000)
+    text = dt.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+    return text if date else text[11:]
+
+
+def _round(v: float | None, digits: int = 6) -> float | None:
+    return None if v is None else round(v, digits)
+
+
+def _event_json(e: EventLine) -> dict[str, Any]:
+    return {"time_ns": e.time_ns, "time_utc": format_utc(e.time_ns), "kind": e.kind, "severity": e.severity,
+            "source": e.source, "text": e.text}
+
+
+def info_to_json(info: SessionInfo) -> dict[str, Any]:
+    """The JSON document of ``rig info --json`` (keys :data:`INFO_JSON_KEYS`, see the module docstring)."""
+    doc: dict[str, Any] = {
+        "format": INFO_FORMAT,
+        "version": INFO_VERSION,
+        "session": info.name,
+        "path": str(info.path),
+        "start_ns": info.start_ns,
+        "end_ns": info.end_ns,
+        "start_utc": None if info.start_ns is None else format_utc(info.start_ns),
+        "end_utc": None if info.end_ns is None else format_utc(info.end_ns),
+        "duration_s": _round(info.duration_s, 9),
+        "messages": info.messages,
+        "truncated": info.truncated,
+        "recorder": dict(info.recorder),
+        "parts": [
+            {
+                "index": p.index,
+                "file": p.path.name,
+                "bytes": p.size_bytes,
+                "messages": p.messages,
+                "finalized": p.finalized,
+                "read_via": p.read_via.value,
+                "problem": p.problem,
+                "problem_kind": None if p.problem_kind is None else p.problem_kind.value,
+                "end_reason": p.end_reason,
+                "start_ns": p.start_ns,
+                "end_ns": p.end_ns,
+            }
+            for p in info.parts
+        ],
+        "topics": [
+            {
+                "topic": t.topic,
+                "schema": t.schema,
+                "encoding": t.encoding,
+                "raw": t.raw,
+                "messages": t.messages,
+                "first_ns": t.first_ns,
+                "last_ns": t.last_ns,
+                "rate_hz": _round(t.rate_hz),
+                "typical_interval_s": _round(t.typical_interval_s, 9),
+                "max_interval_s": _round(t.max_interval_s, 9),
+                "gap_threshold_s": _round(t.gap_threshold_s, 9),
+                "gap_count": t.gap_count,
+                "gap_total_s": _round(t.gap_total_s, 9),
+                "gaps": [{"start_ns": g.start_ns, "end_ns": g.end_ns, "duration_s": _round(g.duration_s, 9)}
+                         for g in t.gaps],
+            }
+            for t in info.topics
+        ],
+        "devices": [
+            {
+                "name": d.name,
+                "kind": d.kind,
+                "topics": list(d.topics),
+                "messages": d.messages,
+                "written": d.written,
+                "dropped": d.dropped,
+                "connects": d.connects,
+                "disconnects": d.disconnects,
+                "errors": d.errors,
+                "warnings": d.warnings,
+            }
+            for d in info.devices
+        ],
+        "device_gaps": [
+            {
+                "device": g.device,
+                "kind": g.kind.value,
+                "start_ns": g.start_ns,
+                "end_ns": g.end_ns,
+                "duration_s": _round(g.duration_s, 9),
+                "open": g.open,
+                "dropped": g.dropped,
+                "text": g.text,
+            }
+            for g in info.device_gaps
+        ],
+        "timebase": {
+            "records": info.timebase_records,
+            "clocks": [
+                {
+                    "clock": c.clock,
+                    "method": c.method,
+                    "reference": c.reference,
+                    "status": c.status,
+                    "n": c.n,
+                    "span_s": c.span_s,
+                    "offset_ns": c.offset_ns,
+                    "drift_ppm": c.drift_ppm,
+                    "jitter_ns": c.jitter_ns,
+                    "latency_p50_ns": c.latency_p50_ns,
+                    "latency_p95_ns": c.latency_p95_ns,
+                    "rms_ns": c.rms_ns,
+                    "max_abs_ns": c.max_abs_ns,
+                    "leap_seconds": c.leap_seconds,
+                    "time_ns": c.time_ns,
+                    "records": c.records,
+                }
+                for c in info.clocks
+            ],
+        },
+        "calibration": dict(info.calibration),
+        "events": {
+            "total": info.events.total,
+            "by_kind": dict(info.events.by_kind),
+            "by_severity": dict(info.events.by_severity),
+            "problems": [_event_json(e) for e in info.events.problems],
+            "marks": [_event_json(e) for e in info.events.marks],
+        },
+        "attachments": [{"name": a.name, "media_type": a.media_type, "bytes": a.size_bytes} for a in info.attachments],
+        "warnings": list(info.warnings),
+    }
+    assert tuple(doc) == INFO_JSON_KEYS
+    return doc
+
+
+def _size(n: int) -> str:
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{n} B"
+
+
+def _secs(v: float | None) -> str:
+    if v is None:
+        return "-"
+    if abs(v) < 1.0:
+        return f"{v * 1e3:.1f} ms"
+    return f"{v:.2f} s"
+
+
+def _ns_text(v: float | None) -> str:
+    if v is None:
+        return "-"
+    if abs(v) >= 1e6:
+        return f"{v / 1e6:.2f} ms"
+    return f"{v / 1e3:.1f} µs"
+
+
+def _rel(t: int | None, t0: int | None) -> str:
+    return "-" if t is None or t0 is None else f"{(t - t0) / _NS:+.2f}"
+
+
+def _table(rows: Sequence[Sequence[str]], right: Sequence[bool]) -> list[str]:
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = []
+    for r in rows:
+        cells = [c.rjust(w) if right[i] else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths, strict=True))]
+        lines.append("  " + "  ".join(cells).rstrip())
+    return lines
+
+
+def format_info(info: SessionInfo, *, max_list: int = 20) -> str:
+    """The text ``rig info`` prints (``max_list``: longest list of gaps or events before "… more")."""
+    t0 = info.start_ns
+    out: list[str] = []
+    n_parts = len(info.parts)
+    bad = sum(1 for p in info.parts if p.problem is not None or not p.finalized)
+    state = f", {bad} not finalized" if bad else ""
+    out.append(f"session    {info.name}  ({n_parts} part{'s' if n_parts != 1 else ''}{state})  {info.path}")
+    dur = info.duration_s
+    out.append(f"time       {format_utc(info.start_ns)} → {format_utc(info.end_ns)}  "
+               f"({'-' if dur is None else f'{dur:.3f} s'})")
+    out.append(f"messages   {info.messages}")
+    if info.recorder:
+        r = info.recorder
+        out.append(f"recorder   {r.get('software', '?')} {r.get('version', '')} on {r.get('host', '?')}, "
+                   f"{r.get('compression', '?')} chunks")
+
+    out.append("")
+    out.append("parts")
+    rows: list[tuple[str, ...]] = [("file", "size", "messages", "state", "read via", "ended")]
+    for p in info.parts:
+        st = "finalized" if p.finalized and p.problem is None else (p.problem_kind or "unfinished").upper()
+        rows.append((p.path.name, _size(p.size_bytes), str(p.messages), str(st), p.read_via.value, p.end_reason or "-"))
+    out.extend(_table(rows, (False, True, True, False, False, False)))
+    for p in info.parts:
+        if p.problem is not None:
+            out.append(f"  ! {p.path.name}: {p.problem}")
+
+    out.append("")
+    out.append(f"topics ({len(info.topics)}; times in s from the start)")
+    rows = [("topic", "messages", "rate", "typical dt", "max dt", "from", "to", "gaps")]
+    for t in info.topics:
+        gaps = "-" if t.gap_threshold_s is None else (
+            "0" if not t.gap_count else f"{t.gap_count} ({t.gap_total_s:.2f} s)")
+        rows.append((t.topic, str(t.messages), "-" if t.rate_hz is None else f"{t.rate_hz:.2f} Hz",
+                     _secs(t.typical_interval_s), _secs(t.max_interval_s), _rel(t.first_ns, t0), _rel(t.last_ns, t0),
+                     gaps))
+    out.extend(_table(rows, (False, True, True, True, True, True, True, False)))
+
+    out.append("")
+    out.append("devices")
+    if info.devices:
+        rows = [("device", "kind", "topics", "messages", "written", "dropped", "connects", "disconnects", "errors",
+                 "warnings")]
+        for d in info.devices:
+            written = "-" if d.written is None else str(d.written)
+            rows.append((d.name, d.kind, str(len(d.topics)), str(d.messages), written, str(d.dropped), str(d.connects),
+                         str(d.disconnects), str(d.errors), str(d.warnings)))
+        out.extend(_table(rows, (False, False, True, True, True, True, True, True, True, True)))
+    else:
+        out.append("  (none)")
+
+    out.append("")
+    topic_gaps = [(t.topic, g) for t in info.topics for g in t.gaps]
+    total_topic_gaps = sum(t.gap_count for t in info.topics)
+    out.append(f"gaps ({total_topic_gaps} in topics, {len(info.device_gaps)} device events)")
+    if not topic_gaps and not info.device_gaps:
+        out.append("  (none)")
+    topic_gaps.sort(key=lambda x: (x[1].start_ns, x[0]))
+    for topic, g in topic_gaps[:max_list]:
+        out.append(f"  {format_utc(g.start_ns, date=False)} → {format_utc(g.end_ns, date=False)}  "
+                   f"{g.duration_s:8.3f} s  {topic}")
+    if len(topic_gaps) > max_list or total_topic_gaps > len(topic_gaps):
+        out.append(f"  … {total_topic_gaps - min(max_list, len(topic_gaps))} more topic gaps (see --json)")
+    for dg in info.device_gaps[:max_list]:
+        span = "open" if dg.open else _secs(dg.duration_s)
+        extra = f", {dg.dropped} dropped" if dg.dropped else ""
+        out.append(f"  {format_utc(dg.start_ns, date=False)} → {format_utc(dg.end_ns, date=False)}  {span:>10}  "
+                   f"{dg.device} {dg.kind.value}{extra}: {dg.text}")
+    if len(info.device_gaps) > max_list:
+        out.append(f"  … {len(info.device_gaps) - max_list} more device gaps (see --json)")
+
+    out.append("")
+    out.append(f"time base ({info.timebase_records} records in {T.TOPIC_TIMEBASE})")
+    if info.clocks:
+        rows = [("clock", "method", "status", "n", "span", "drift", "jitter", "p95 latency", "sync rms", "sync max",
+                 "leap")]
+        for c in info.clocks:
+            rows.append((c.clock, c.method, c.status, str(c.n), _secs(c.span_s),
+                         "-" if c.drift_ppm is None else f"{c.drift_ppm:+.2f} ppm", _ns_text(c.jitter_ns),
+                         _ns_text(c.latency_p95_ns), _ns_text(c.rms_ns), _ns_text(c.max_abs_ns),
+                         "-" if c.leap_seconds is None else str(c.leap_seconds)))
+        out.extend(_table(rows, (False, False, False, True, True, True, True, True, True, True, True)))
+    else:
+        out.append("  (no time-base records: the time base quality is unknown)")
+
+    out.append("")
+    out.append("calibration in force")
+    if info.calibration:
+        width = max(len(k) for k in info.calibration)
+        out.extend(f"  {k.ljust(width)} = {v}" for k, v in sorted(info.calibration.items()))
+    else:
+        out.append("  (none recorded)")
+
+    out.append("")
+    ev = info.events
+    kinds = ", ".join(f"{k} {n}" for k, n in ev.by_kind.items())
+    out.append(f"events ({ev.total}{': ' + kinds if kinds else ''})")
+    listed = sorted(ev.problems + ev.marks, key=lambda e: e.time_ns)
+    for e in listed[:max_list]:
+        out.append(f"  {format_utc(e.time_ns, date=False)}  {e.severity.upper():7}  {e.kind:10}  {e.source}: {e.text}")
+    if len(listed) > max_list:
+        out.append(f"  … {len(listed) - max_list} more (see --json)")
+
+    if info.attachments:
+        out.append("")
+        out.append("attachments")
+        out.extend(f"  {a.name}  ({a.media_type}, {_size(a.size_bytes)})" for a in info.attachments)
+
+    if info.warnings:
+        out.append("")
+        out.append("warnings")
+        out.extend(f"  ! {w}" for w in info.warnings)
+    return "\n".join(out) + "\n"

@@ -1,0 +1,75 @@
+"""Automatic manoeuvre segmentation against the simulator's scenario log, and operator marks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rig.analysis.manoeuvres import ManoeuvreKind, Source, apply_marks, segment_manoeuvres
+from sim_devices.vehicle import GroundTruth
+from vsccore.errors import AnalysisError
+
+EXPECTED = {
+    "straight": ManoeuvreKind.STRAIGHT,
+    "double_lane_change": ManoeuvreKind.DOUBLE_LANE_CHANGE,
+    "step_steer": ManoeuvreKind.STEP_STEER,
+    "j_turn": ManoeuvreKind.J_TURN,
+    "fishhook": ManoeuvreKind.FISHHOOK,
+    "steady_state_circle": ManoeuvreKind.STEADY_STATE_CORNERING,
+    "sine_with_dwell": ManoeuvreKind.SINE_WITH_DWELL,
+    "swa_circles": ManoeuvreKind.LOW_SPEED,
+}
+
+
+def _scenarios(truth: GroundTruth) -> list[tuple[str, float, float]]:
+    out = []
+    k = 0
+    while f"segment.{k}.kind" in truth.meta:
+        if truth.meta[f"segment.{k}.kind"] == "scenario":
+            out.append((
+                str(truth.meta[f"segment.{k}.name"]),
+                float(truth.meta[f"segment.{k}.t_start_s"]),
+                float(truth.meta[f"segment.{k}.t_end_s"]),
+            ))
+        k += 1
+    return out
+
+
+def test_every_simulated_manoeuvre_is_recognised(mixed: GroundTruth) -> None:
+    mans = segment_manoeuvres(mixed.t, mixed.speed, mixed.swa, mixed.yaw_rate, mixed.ay_meas)
+    # a partition of the record
+    assert mans[0].start_index == 0 and mans[-1].stop_index == len(mixed)
+    assert all(a.stop_index == b.start_index for a, b in zip(mans, mans[1:], strict=False))
+    labels = np.empty(len(mixed), dtype=object)
+    for m in mans:
+        labels[m.start_index : m.stop_index] = m.kind
+    scen = _scenarios(mixed)
+    assert [s[0] for s in scen] == list(EXPECTED)
+    for name, t0, t1 in scen:
+        span = (mixed.t >= t0) & (mixed.t < t1)
+        want = EXPECTED[name]
+        if want in (ManoeuvreKind.STRAIGHT, ManoeuvreKind.LOW_SPEED):
+            assert np.mean(labels[span] == want) > 0.9, name
+        else:
+            # the sample of the largest |a_y| and most of the lateral activity carry the scenario's kind
+            peak = np.flatnonzero(span)[np.argmax(np.abs(mixed.ay[span]))]
+            assert labels[peak] is want, (name, labels[peak])
+            busy = span & (np.abs(mixed.ay) > 1.0)
+            assert np.mean(labels[busy] == want) > 0.9, name
+    assert mans[1].to_dict()["kind"] == mans[1].kind.value
+
+
+def test_operator_marks_override(mixed: GroundTruth) -> None:
+    mans = segment_manoeuvres(mixed.t, mixed.speed, mixed.swa, mixed.yaw_rate, mixed.ay_meas)
+    marked = apply_marks(mixed.t, mans, [(1.0, 3.0, "brake test"), (4.0, 5.0, "Double lane change")])
+    kinds = [(m.kind, m.source, round(m.t_start_s, 2)) for m in marked[:4]]
+    assert kinds == [
+        (ManoeuvreKind.STRAIGHT, Source.AUTO, 0.0),
+        (ManoeuvreKind.OTHER, Source.MARK, 1.0),
+        (ManoeuvreKind.STRAIGHT, Source.AUTO, 3.01),
+        (ManoeuvreKind.DOUBLE_LANE_CHANGE, Source.MARK, 4.0),
+    ]
+    assert marked[1].label == "brake test"
+    assert sum(m.stop_index - m.start_index for m in marked) == len(mixed)
+    with pytest.raises(AnalysisError, match="ends"):
+        apply_marks(mixed.t, mans, [(5.0, 4.0, "x")])
