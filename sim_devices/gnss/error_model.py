@@ -10,6 +10,16 @@ at once, like the jump a real receiver shows when it fixes or loses its ambiguit
 correlated share of the variance is ``correlated_fraction``. Velocity errors are white
 (Doppler-derived velocity is nearly so).
 
+Common-mode error. Two rovers on one roof, corrected by the same base, share most of their
+position error (base coordinates, atmospheric residuals, the same satellites): their *relative*
+position, and so the baseline heading, is far better than either absolute position (dual-antenna
+systems quote ~0.1° heading at 1 m, i.e. a few mm of relative error). ``common_fraction`` of the
+position variance is therefore a process shared by every receiver built with the same
+``common_seed``: a sum of sinusoids with seeded random frequencies (Gauss–Markov-like spectrum
+with the same ``correlation_time_s``) and phases, a deterministic function of GPS time, so each
+receiver evaluates it at its own epochs without sharing state. The remaining variance is the
+receiver's own (multipath, noise) as above.
+
 RTK state. :class:`RtkStateMachine` is fed every valid correction frame a rover receives (message
 number, station ID, receive time, and for GPS observation messages the base epoch). From that
 history it says which solution type a rover has at a given GPS time:
@@ -41,6 +51,7 @@ from vsccore.gpstime import NS_PER_S
 
 __all__ = [
     "DEFAULT_SOLUTION_NOISE",
+    "CommonModeError",
     "GnssErrorModel",
     "GnssErrorParams",
     "RtkParams",
@@ -112,8 +123,13 @@ class GnssErrorParams:
     noise: Mapping[PositionType, SolutionNoise] = field(default_factory=_default_noise)
     correlated_fraction: float = 0.7
     correlation_time_s: float = 10.0
+    common_fraction: float = 0.0
+    """Share of the position variance common to all receivers with the same ``common_seed``."""
+    common_seed: int = 0
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.common_fraction <= 1.0:
+            raise SimulationError(f"common_fraction must be in [0, 1], got {self.common_fraction}")
         if not 0.0 <= self.correlated_fraction <= 1.0:
             raise SimulationError(f"correlated_fraction must be in [0, 1], got {self.correlated_fraction}")
         if not (math.isfinite(self.correlation_time_s) and self.correlation_time_s > 0.0):
@@ -138,6 +154,26 @@ class SolutionError:
     velocity_sigma_enu_mps: FloatArray
 
 
+class CommonModeError:
+    """A smooth zero-mean unit-variance random process per ENU axis, a deterministic function of time.
+
+    Sum of ``n`` sinusoids per axis with frequencies drawn from the Lorentzian spectrum of a
+    first-order Gauss–Markov process with time constant ``tau_s`` (so its autocorrelation is
+    close to exp(−|Δt|/τ)) and uniform random phases; amplitude √(2/n) each gives unit variance.
+    """
+
+    def __init__(self, seed: int, tau_s: float, n: int = 48) -> None:
+        rng = np.random.default_rng([0x5EED, seed])
+        # Lorentzian (Cauchy) angular frequencies with half-width 1/τ: the spectrum of exp(−|t|/τ)
+        self._omega = np.abs(rng.standard_cauchy((3, n))) / tau_s
+        self._phase = rng.uniform(0.0, 2.0 * math.pi, (3, n))
+        self._amp = math.sqrt(2.0 / n)
+
+    def at(self, t_s: float) -> FloatArray:
+        """The process value (3,) at time ``t_s`` (any origin; seconds)."""
+        return self._amp * np.cos(self._omega * t_s + self._phase).sum(axis=1)
+
+
 class GnssErrorModel:
     """Seeded position/velocity error generator (see module docstring).
 
@@ -150,6 +186,8 @@ class GnssErrorModel:
         self._rng = np.random.default_rng(seed)
         self._gm = self._rng.standard_normal(3)  # stationary start
         self._t_ns: int | None = None
+        p = self.params
+        self._common = CommonModeError(p.common_seed, p.correlation_time_s) if p.common_fraction > 0.0 else None
 
     def sample(self, t_gps_ns: int, pos_type: PositionType) -> SolutionError:
         """Errors of the solution at GPS time ``t_gps_ns`` (ns) of type ``pos_type``."""
@@ -165,6 +203,10 @@ class GnssErrorModel:
         noise = p.noise_for(pos_type)
         sigma = noise.position_sigma_enu
         unit = math.sqrt(p.correlated_fraction) * self._gm + math.sqrt(1.0 - p.correlated_fraction) * white
+        if self._common is not None:
+            # one week of GPS time keeps the float argument accurate (ω·t ≲ 1e6 rad)
+            common = self._common.at((t_gps_ns % (7 * 86400 * NS_PER_S)) / NS_PER_S)
+            unit = math.sqrt(1.0 - p.common_fraction) * unit + math.sqrt(p.common_fraction) * common
         vsigma = noise.velocity_sigma_enu
         return SolutionError(sigma * unit, sigma, vsigma * vel_white, vsigma)
 
