@@ -296,6 +296,9 @@ class ReceiverConfig(_Model):
     autobaud: bool = False
     command_port: str = "COM1"
     correction_port: str = "COM2"
+    correction_device: str | None = None
+    """Host serial port (path or URL, ``sim://NAME/COM2`` when simulated) wired to ``correction_port``;
+    None: the relay writes corrections through the receiver's command port."""
     correction_format: Literal["rtcmv3", "rtca", "cmr", "novatel"] = "rtcmv3"
     logs: tuple[LogRequest, ...] = Field(default_factory=_default_rover_logs)
     fix_position: tuple[float, float, float] | None = None
@@ -441,9 +444,13 @@ class OutputConfig(_Model):
 class SimGnssConfig(_Model):
     """Error model of the simulated receivers (1σ)."""
 
-    position_noise_m: NonNegative = 0.02
-    velocity_noise_mps: NonNegative = 0.03
+    position_noise_m: NonNegative = 0.015
+    """RTK-fixed horizontal 2-D RMS of each rover's position."""
+    velocity_noise_mps: NonNegative = 0.02
     correlation_time_s: Positive = 1.0
+    common_fraction: Annotated[float, Field(ge=0.0, le=1.0)] = 0.95
+    """Share of the position error variance common to all rovers (same base, same sky); the rest is
+    each antenna's own, so the relative A–B error is √(2·(1 − f))·σ (≈ 5 mm at the defaults)."""
     output_latency_s: NonNegative = 0.02
     leap_seconds: int = 18
 
