@@ -50,7 +50,18 @@ def _root(
 
 def _register() -> None:
     """Attach the command groups (each lives in its own module)."""
-    from rig.cli import can_cmd, config_cmd, demo_cmd, gnss_cmd, info_cmd, recover_cmd, relay_cmd, sim_cmd
+    from rig.cli import (
+        calibrate_cmd,
+        can_cmd,
+        config_cmd,
+        demo_cmd,
+        gnss_cmd,
+        info_cmd,
+        record_cmd,
+        recover_cmd,
+        relay_cmd,
+        sim_cmd,
+    )
 
     app.add_typer(sim_cmd.app, name="sim")
     app.add_typer(gnss_cmd.app, name="gnss")
@@ -59,11 +70,10 @@ def _register() -> None:
     app.command("demo")(demo_cmd.demo)
     app.command("relay")(relay_cmd.relay)
     app.command("recover")(recover_cmd.recover)
-    from rig.cli import record_cmd  # rig record, rig sim record
-
     app.command("record")(record_cmd.record)
     sim_cmd.app.command("record")(record_cmd.sim_record)
     info_cmd.register(app)  # rig info, rig export
+    calibrate_cmd.register(app)  # rig calibrate-*, steering-ratio
 
 
 _register()

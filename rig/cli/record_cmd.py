@@ -1,0 +1,159 @@
+"""``rig record`` (the devices of a session configuration into one MCAP file) and ``rig sim record``.
+
+    rig record car.toml --out sessions/ --name run1          # until Ctrl-C / SIGTERM (or --duration)
+    rig sim record rig/examples/sim.toml --out out/ --fast --set simulation.true_mount_offset_deg=0.5
+
+While recording, :class:`rig.dashboard.Dashboard` shows every device on a terminal (``m`` + a note +
+Enter records an operator mark on ``/rig/events`` at the time of the key press); otherwise a status
+line is printed every few seconds. Ctrl-C or SIGTERM stop the session cleanly: devices stopped,
+file finalized.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from rig.config import SessionConfig, load_session, parse_override
+from rig.dashboard import Dashboard
+from rig.session import RecordSession, SessionSummary, summary_lines
+from rig.simworld import FAST_SPEED, SIM_PREFIX, record_simulated
+from vsccore.errors import ConfigError
+
+
+@contextmanager
+def _stop_on_signals(stop: threading.Event) -> Iterator[dict[str, str]]:
+    """SIGINT and SIGTERM set ``stop`` (the session then ends cleanly) instead of killing the process."""
+    got: dict[str, str] = {}
+
+    def handler(signum: int, _frame: Any) -> None:
+        got["signal"] = signal.Signals(signum).name
+        stop.set()
+
+    if threading.current_thread() is not threading.main_thread():
+        yield got
+        return
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield got
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+@contextmanager
+def _dashboard(enabled: bool) -> Iterator[Callable[[RecordSession], None]]:
+    """The live dashboard (or plain status lines) of the running session; yields the session's tick.
+
+    The dashboard starts on the first tick (the session is recording then) and stops on exit.
+    """
+    running: list[Dashboard] = []
+
+    def tick(session: RecordSession) -> None:
+        if enabled and not running:
+            dash = Dashboard(session.board, session.clock, on_mark=lambda m: session.mark(m.note, host_ns=m.host_ns))
+            dash.start()
+            running.append(dash)
+
+    try:
+        yield tick
+    finally:
+        for dash in running:
+            dash.stop()
+
+
+def _report(summary: SessionSummary, stopped_by: str | None) -> None:
+    for line in summary_lines(summary):
+        typer.echo(line, err=True)
+    if stopped_by:
+        typer.echo(f"rig: stopped by {stopped_by}; the file is finalized", err=True)
+    if summary.recording.error is not None:
+        raise summary.recording.error
+
+
+def record(
+    config: Annotated[Path, typer.Argument(help="Session configuration (TOML).")],
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Output folder (default: the configuration's output directory).")
+    ] = None,
+    name: Annotated[
+        str | None, typer.Option("--name", help="Session name (default: the output name or the start time).")
+    ] = None,
+    duration: Annotated[float | None, typer.Option("--duration", min=0.0, help="Stop after this many seconds.")] = None,
+    no_dashboard: Annotated[bool, typer.Option("--no-dashboard", help="Plain status lines, no live view.")] = False,
+) -> None:
+    """Record every device of CONFIG (receivers, correction relay, CAN, DAQ) into one MCAP session file
+    until Ctrl-C, SIGTERM or --duration."""
+    cfg = load_session(config)
+    simulated = [r.name for r in cfg.receivers if r.port.startswith(SIM_PREFIX)]
+    if simulated:
+        raise ConfigError(
+            f"{config}: receivers {simulated} are simulated (sim://); record them with `rig sim record {config}`"
+        )
+    stop = threading.Event()
+    session = RecordSession(cfg, out_dir=out, name=name, config_path=config)
+    with _stop_on_signals(stop) as got:
+        session.start()
+        typer.echo(f"recording {session.name} to {session.base}.000.mcap (Ctrl-C to stop)", err=True)
+        try:
+            with _dashboard(not no_dashboard) as tick:
+                session.run(stop, duration_s=duration, tick=lambda: tick(session))
+        finally:
+            summary = session.stop()
+    _report(summary, got.get("signal"))
+
+
+def sim_record(
+    config: Annotated[Path, typer.Argument(help="Session configuration with a simulation table.")],
+    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    name: Annotated[
+        str | None, typer.Option("--name", help="Session name (default: the simulated start time).")
+    ] = None,
+    drive: Annotated[
+        str | None, typer.Option("--drive", help="Drive: 'demo' or a scenario (NAME or NAME:key=value,...).")
+    ] = None,
+    set_: Annotated[
+        list[str] | None, typer.Option("--set", help="Override a configuration key: KEY=VALUE (repeatable).")
+    ] = None,
+    fast: Annotated[bool, typer.Option("--fast", help=f"Run at least {FAST_SPEED:g}× real time.")] = False,
+    speed: Annotated[float | None, typer.Option("--speed", min=0.01, help="Clock speed factor.")] = None,
+    no_dashboard: Annotated[bool, typer.Option("--no-dashboard", help="Plain status lines, no live view.")] = False,
+) -> None:
+    """Record a simulated session: the simulated car of CONFIG with every device on pseudo-terminals, a
+    virtual CAN bus and the simulated DAQ, through the real recording path, until the drive ends."""
+    overrides = dict(parse_override(item) for item in (set_ or []))
+    if drive is not None:
+        overrides["simulation.drive"] = drive
+    cfg = load_session(config, overrides)
+    _check_simulated(cfg, config)
+    assert cfg.simulation is not None
+    factor = speed if speed is not None else cfg.simulation.speed
+    if fast:
+        factor = max(factor, FAST_SPEED)
+    stop = threading.Event()
+    with _stop_on_signals(stop) as got, _dashboard(not no_dashboard) as tick:
+        result = record_simulated(
+            cfg, out, name=name, speed=factor, stop=stop, tick=tick, config_path=config,
+            on_started=lambda s: typer.echo(f"recording {s.name} to {s.base}.000.mcap (Ctrl-C to stop)", err=True),
+        )
+    world = result.world
+    typer.echo(
+        f"simulated {world.duration_s:.1f} s drive (+{world.lead_s:.0f} s lead) at {world.speed:g}× in "
+        f"{result.wall_s:.1f} s{'' if result.completed else ' (stopped early)'}",
+        err=True,
+    )
+    _report(result.summary, got.get("signal"))
+
+
+def _check_simulated(cfg: SessionConfig, path: Path) -> None:
+    if cfg.simulation is None:
+        raise ConfigError(f"{path}: no [simulation] table; `rig sim record` records a simulated car")
+    real = [r.name for r in cfg.receivers if not r.port.startswith(SIM_PREFIX)]
+    if real:
+        raise ConfigError(f"{path}: receivers {real} have real ports; a simulated session needs sim://NAME ports")

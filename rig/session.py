@@ -1,0 +1,570 @@
+"""A recording session: every device of a session configuration into one MCAP file (``rig record``).
+
+:class:`RecordSession` builds the devices of a :class:`~rig.config.SessionConfig` and records them
+through one :class:`~rig.recorder.Recorder`, one bounded source per device:
+
+- each NovAtel receiver (:class:`~drivers.novatel.receiver.NovatelReceiver`): configured with
+  its logs, the raw bytes of its port on ``/gnss/<rx>/raw``, the decoded BESTPOS / BESTVEL /
+  MARKPOS / MARKTIME / TIME / HEADING logs, and a ``foxglove.LocationFix`` per BESTPOS on
+  ``/gnss/<rx>/fix``; every synchronous log feeds the receiver's clock estimator in the
+  :class:`~rig.timebase.Timebase` (after removing the receiver's output latency and the log's
+  serial transmission time), and TIME gives the leap seconds;
+- the correction relay (:class:`~drivers.relay.Relay`): ``receiver:NAME`` as source reads the
+  corrections out of that receiver's own stream; ``receiver:NAME`` as sink writes to the device
+  wired to that receiver's correction port (or through its command port); the relayed frames on
+  ``/relay/raw`` and its statistics on ``/relay/stats`` once a second;
+- each CAN bus (:class:`~drivers.can.bus.CanBusSession`): every frame in blocks on
+  ``/can/<bus>/frames`` and, with a role map, one ``/can/<bus>/roles`` message per decoded frame;
+- the DAQ (:class:`~drivers.daq.DaqSession`): sample blocks on ``/daq/<device>/samples`` and the
+  optical sensors wired to it (decimated to ≤ 100 Hz) on ``/optical/<sensor>``; its sample clock
+  is put on GPS time from the sync-switch edges and the MARKTIME/MARKPOS of the same edges;
+- ``/rig/timebase`` quality records every ``timebase_period_s`` and at the end, and
+  ``/rig/events`` for connects, disconnects, gaps, errors and warnings of every device.
+
+Decoded messages carry ``log_time`` on the common time base (GNSS logs: their GPS time in UTC;
+other devices: their device or host time mapped through the time base as known at that moment);
+``publish_time`` is always the host receive time. A device that fails does not stop the others:
+its callbacks never raise into its driver, its failure is an event and a line on the
+:class:`~rig.status.StatusBoard`. :meth:`RecordSession.stop` stops the relay, receivers, CAN and
+DAQ, writes the last records and finalizes the file. Simulated sessions pass the simulated world
+as port resolver, DAQ and CAN factories and plug-in (see :mod:`rig.simworld`). The device adapters
+live in :mod:`rig.session_devices`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import io
+import logging
+import math
+import shutil
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Protocol
+
+import can
+import pymap3d
+import tomli_w
+
+import rig.topics as T  # noqa: N812 - topics used as a namespace
+from drivers.can.bus import CanBusConfig
+from drivers.daq import DaqBlock, DaqEvent, DaqSession
+from drivers.novatel import BestPos
+from rig.config import DaqConfig, ReceiverConfig, SessionConfig
+from rig.recorder import Attachment, Recorder, RecorderOptions, RecordingSummary, Source, session_metadata
+from rig.session_devices import (
+    CAN_BLOCK_AGE_NS,
+    CanDevice,
+    DaqDevice,
+    Device,
+    GnssDevice,
+    LiveLtr,
+    RelayDevice,
+    receiver_commands,
+    roles_table,
+)
+from rig.status import StatusBoard
+from rig.timebase import Timebase
+from rig.topics import EventKind
+from vsccore.angles import sideslip_from_azimuths
+from vsccore.clock import Clock, SystemClock
+from vsccore.errors import ConfigError, SessionFileError
+from vsccore.gpstime import NS_PER_S
+
+__all__ = [
+    "DaqFactory",
+    "DirectPorts",
+    "PortResolver",
+    "RecordSession",
+    "SessionPlugin",
+    "SessionSummary",
+    "default_session_name",
+    "receiver_commands",
+    "summary_lines",
+]
+
+log = logging.getLogger(__name__)
+
+
+
+class PortResolver(Protocol):
+    """Where a receiver's ports are on this host (real devices: the configuration as written)."""
+
+    def port(self, receiver: ReceiverConfig) -> str:
+        """Path or URL of the host port wired to the receiver's command port."""
+        ...
+
+    def correction_port(self, receiver: ReceiverConfig) -> str | None:
+        """Path or URL wired to the receiver's correction port (None: send through the command port)."""
+        ...
+
+
+class DirectPorts:
+    """The ports as configured (``port``, ``correction_device``)."""
+
+    def port(self, receiver: ReceiverConfig) -> str:
+        return receiver.port
+
+    def correction_port(self, receiver: ReceiverConfig) -> str | None:
+        return receiver.correction_device
+
+
+class SessionPlugin(Protocol):
+    """Something that records alongside the devices (the simulated world's ground truth)."""
+
+    def attach(self, session: RecordSession) -> None:
+        """Called once the recorder runs and the devices are started."""
+        ...
+
+    def detach(self, session: RecordSession) -> None:
+        """Called after the devices stopped, before the file is finalized."""
+        ...
+
+
+DaqFactory = Callable[[DaqConfig, Clock, Callable[[DaqBlock], None], Callable[[DaqEvent], None]], DaqSession]
+"""Makes the DAQ session for ``[daq]`` (default: :meth:`drivers.daq.DaqSession.from_config`)."""
+
+
+@dataclass(frozen=True, slots=True)
+class SessionSummary:
+    """What a finished session recorded."""
+
+    name: str
+    recording: RecordingSummary
+    errors: tuple[str, ...]
+    """Problems while stopping devices (the recording itself: ``recording.error``)."""
+    device_errors: dict[str, int]
+    """Error events per device during the session."""
+
+    @property
+    def parts(self) -> tuple[Path, ...]:
+        return self.recording.parts
+
+
+def default_session_name(now_ns: int) -> str:
+    """``session-YYYYmmdd-HHMMSS`` (UTC) of a host time."""
+    return datetime.fromtimestamp(now_ns / 1e9, tz=UTC).strftime("session-%Y%m%d-%H%M%S")
+
+
+# ---------------------------------------------------------------------------------------------
+# The session
+# ---------------------------------------------------------------------------------------------
+
+
+class RecordSession:
+    """Records every device of ``cfg`` into ``<out_dir>/<name>.NNN.mcap`` (see the module docstring).
+
+    Args:
+        cfg: the session configuration (resolved by :func:`rig.config.load_session`).
+        out_dir: output folder (default ``[output].directory``; created).
+        name: session name (default ``[output].name`` or ``session-<UTC time>``).
+        clock: host clock (a simulated world's scaled clock; default the wall clock).
+        ports: where the receivers' ports are (default: as configured).
+        daq_factory: makes the DAQ session (default :meth:`~drivers.daq.DaqSession.from_config`).
+        can_factory: opens a CAN interface (default :func:`drivers.can.bus.open_bus`).
+        plugins: attached after the devices start, detached after they stop.
+        config_path: the configuration file, attached to the recording.
+        options: recorder options (default from ``[output]``).
+        stats_period_s, timebase_period_s: how often relay statistics and time-base records are written
+            (session clock).
+        reconnect_first_s, reconnect_max_s: back-off of the receivers' and CAN buses' reconnects.
+    """
+
+    def __init__(
+        self,
+        cfg: SessionConfig,
+        *,
+        out_dir: Path | str | None = None,
+        name: str | None = None,
+        clock: Clock | None = None,
+        ports: PortResolver | None = None,
+        daq_factory: DaqFactory | None = None,
+        can_factory: Callable[[CanBusConfig], can.BusABC] | None = None,
+        plugins: Sequence[SessionPlugin] = (),
+        config_path: Path | str | None = None,
+        options: RecorderOptions | None = None,
+        stats_period_s: float = 1.0,
+        timebase_period_s: float = 10.0,
+        reconnect_first_s: float = 0.1,
+        reconnect_max_s: float = 2.0,
+    ) -> None:
+        self.cfg = cfg
+        self.clock: Clock = clock or SystemClock()
+        self.name = name or cfg.output.name or default_session_name(self.clock.now_ns())
+        self.out_dir = Path(out_dir if out_dir is not None else cfg.output.directory)
+        self.ports: PortResolver = ports or DirectPorts()
+        self.daq_factory = daq_factory
+        self.can_factory = can_factory
+        self.plugins = tuple(plugins)
+        self.config_path = Path(config_path) if config_path is not None else None
+        self.options = options or RecorderOptions.from_output(cfg.output)
+        self.stats_period_ns = round(stats_period_s * NS_PER_S)
+        self.timebase_period_ns = round(timebase_period_s * NS_PER_S)
+        self.reconnect_first_s = reconnect_first_s
+        self.reconnect_max_s = reconnect_max_s
+        self.gnss_output_latency_ns = (
+            round(cfg.simulation.gnss.output_latency_s * NS_PER_S) if cfg.simulation is not None else 0
+        )
+        rovers = [r for r in cfg.receivers if r.role == "rover"]
+        rovers.sort(key=lambda r: r.antenna or "z")
+        reference = rovers[0].name if rovers else (cfg.receivers[0].name if cfg.receivers else None)
+        self.timebase = Timebase(reference_receiver=reference)
+        self.board = StatusBoard(self.name, now_ns=self.clock.now_ns())
+        self._recorder: Recorder | None = None
+        self.gnss: dict[str, GnssDevice] = {}
+        self.relay: RelayDevice | None = None
+        self.can: list[CanDevice] = []
+        self.daq: DaqDevice | None = None
+        self._rig: Source | None = None
+        self._marks: list[int] = []
+        self._marks_from_time: dict[str, bool] = {}
+        self._sync_receiver: str | None = None
+        self._marks_lock = threading.Lock()
+        self._hk_stop = threading.Event()
+        self._hk: threading.Thread | None = None
+        self._stop_lock = threading.Lock()
+        self._summary: SessionSummary | None = None
+        self.failed = threading.Event()
+        """Set when the recording itself failed (disk full, write error): the session should stop."""
+        self.ltr = LiveLtr(cfg)
+        self._pos_a: tuple[int, BestPos] | None = None
+        self._pos_b: tuple[int, BestPos] | None = None
+
+    # --- public --------------------------------------------------------------------------------
+
+    @property
+    def recorder(self) -> Recorder:
+        if self._recorder is None:
+            raise SessionFileError(f"session {self.name}: not started")
+        return self._recorder
+
+    @property
+    def base(self) -> Path:
+        """Base path of the session's parts (``<out_dir>/<name>``)."""
+        return self.out_dir / self.name
+
+    def start(self) -> None:
+        """Open the file, start every device and the housekeeping thread.
+
+        Raises:
+            ConfigError: a device configuration the drivers refuse (nothing keeps running).
+            SessionFileError: the file cannot be created.
+        """
+        if self._recorder is not None:
+            raise SessionFileError(f"session {self.name}: already started")
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        cfg = self.cfg
+        profile = cfg.profile
+        meta = session_metadata(
+            session=cfg.model_dump(mode="json"),
+            vehicle={"vehicle": profile.vehicle.model_dump(mode="json"),
+                     "antennas": profile.antennas.model_dump(mode="json"),
+                     "optical": [o.model_dump(mode="json") for o in profile.optical]},
+            calibration=profile.calibration.model_dump(mode="json"),
+        )
+        rec = Recorder(self.out_dir, self.name, meta, attachments=self._attachments(), options=self.options,
+                       clock=self.clock, host_to_log_time=self.timebase.host_to_utc)
+        rec.start()
+        self._recorder = rec
+        try:
+            self._rig = rec.source("rig", maxsize=10_000)
+            self._build_devices()
+            self._start_devices()
+            for plugin in self.plugins:
+                plugin.attach(self)
+        except BaseException:
+            self._stop_devices([])
+            rec.stop()
+            raise
+        self._hk_stop.clear()
+        self._hk = threading.Thread(target=self._housekeeping, name=f"rig-session:{self.name}")
+        self._hk.start()
+        log.info("session %s recording to %s", self.name, rec.base)
+
+    def stop(self) -> SessionSummary:
+        """Stop every device, write the last records, finalize the file (idempotent)."""
+        with self._stop_lock:
+            if self._summary is not None:
+                return self._summary
+            rec = self.recorder
+            self._hk_stop.set()
+            if self._hk is not None:
+                self._hk.join(10.0)
+            errors: list[str] = []
+            self._stop_devices(errors)
+            for plugin in self.plugins:
+                _step(errors, f"plugin {type(plugin).__name__}", functools.partial(plugin.detach, self))
+            _step(errors, "final records", self._final_records)
+            summary = rec.stop()
+            self._summary = SessionSummary(
+                name=self.name, recording=summary, errors=tuple(errors),
+                device_errors={d.name: d.errors for d in self._devices()},
+            )
+            for e in errors:
+                log.error("session %s: %s", self.name, e)
+            return self._summary
+
+    def run(
+        self,
+        stop: threading.Event,
+        *,
+        duration_s: float | None = None,
+        until: threading.Event | None = None,
+        tick: Callable[[], None] | None = None,
+        tick_period_s: float = 0.25,
+    ) -> None:
+        """Block until ``stop`` or ``until`` is set, ``duration_s`` of session-clock time passed, or
+        the recording failed; ``tick`` is called every ``tick_period_s`` of real time (dashboard)."""
+        end = None if duration_s is None else self.clock.now_ns() + round(duration_s * NS_PER_S)
+        while not (stop.is_set() or self.failed.is_set() or (until is not None and until.is_set())):
+            if end is not None and self.clock.now_ns() >= end:
+                return
+            if tick is not None:
+                tick()
+            stop.wait(tick_period_s)
+
+    def mark(self, note: str, *, host_ns: int | None = None) -> None:
+        """An operator mark on ``/rig/events`` at host time ``host_ns`` (the key press; default now)."""
+        t = self.clock.now_ns() if host_ns is None else host_ns
+        self.recorder.event(EventKind.MARK, note or "mark", source="operator",
+                            log_time_ns=self.timebase.host_to_utc(t), note=note, host_ns=t)
+        self.board.event(f"mark: {note or '(no note)'}")
+
+    def gnss_device(self, name: str, key: str) -> GnssDevice:
+        dev = self.gnss.get(name)
+        if dev is None:
+            raise ConfigError(f"{key}: receiver:{name} names no configured receiver ({sorted(self.gnss)})")
+        return dev
+
+    def gga_position(self) -> tuple[float, float, float] | None:
+        """Latest position of the main antenna (for an NTRIP network caster's GGA)."""
+        pos = self._pos_a
+        if pos is None:
+            return None
+        b = pos[1]
+        return b.lat_deg, b.lon_deg, b.hgt_m + b.undulation_m
+
+    # --- called by the devices -----------------------------------------------------------------
+
+    def on_mark(self, dev: GnssDevice, gps_ns: int, *, from_marktime: bool) -> None:
+        """A sync-switch event from a receiver (MARKTIME preferred; one receiver feeds the DAQ alignment)."""
+        with self._marks_lock:
+            if self._sync_receiver is None:
+                self._sync_receiver = dev.name
+            if dev.name != self._sync_receiver:
+                return
+            if from_marktime and not self._marks_from_time.get(dev.name):
+                self._marks_from_time[dev.name] = True
+                self._marks.clear()
+            if from_marktime == self._marks_from_time.get(dev.name, False):
+                self._marks.append(gps_ns)
+
+    def on_position(self, dev: GnssDevice, gps_ns: int, pos: BestPos) -> None:
+        """A BESTPOS from a receiver: the live baseline and the relay's view of the rovers' differential age."""
+        if dev.rc.antenna == "a":
+            self._pos_a = (gps_ns, pos)
+        elif dev.rc.antenna == "b":
+            self._pos_b = (gps_ns, pos)
+        if self.relay is not None and dev.rc.role == "rover":
+            self.relay.relay.note_rover_diff_age(dev.name, pos.diff_age_s if math.isfinite(pos.diff_age_s) else None)
+
+    # --- internals -----------------------------------------------------------------------------
+
+    def _attachments(self) -> list[Attachment]:
+        out: list[Attachment] = []
+        names: set[str] = set()
+        for cc in self.cfg.can:
+            att = Attachment.from_file(cc.dbc)
+            if att.name not in names:
+                out.append(att)
+                names.add(att.name)
+            if cc.roles or cc.checks:
+                buf = io.BytesIO()
+                tomli_w.dump(roles_table(cc), buf)
+                out.append(Attachment(f"{cc.name}.roles.toml", "application/toml", buf.getvalue()))
+        if self.config_path is not None:
+            att = Attachment.from_file(self.config_path)
+            if att.name not in names:
+                out.append(att)
+        return out
+
+    def _devices(self) -> list[Device]:
+        devs: list[Device] = list(self.gnss.values())
+        if self.relay is not None:
+            devs.append(self.relay)
+        devs.extend(self.can)
+        if self.daq is not None:
+            devs.append(self.daq)
+        return devs
+
+    def _build_devices(self) -> None:
+        cfg = self.cfg
+        for rc in cfg.receivers:
+            self.gnss[rc.name] = GnssDevice(self, rc, self.ports.port(rc))
+        if cfg.relay is not None and cfg.relay.enabled:
+            self.relay = RelayDevice(self)
+        for cc in cfg.can:
+            self.can.append(CanDevice(self, cc))
+        if cfg.daq is not None:
+            self.daq = DaqDevice(self, cfg.daq)
+        ant = cfg.profile.antennas
+        self.board.vehicle(baseline_nominal_m=ant.baseline_length_m, baseline_tolerance_m=ant.baseline_tolerance_m)
+
+    def _start_devices(self) -> None:
+        for g in self.gnss.values():
+            g.start()
+        if self.relay is not None:
+            self.relay.start()
+        for c in self.can:
+            c.start()
+        if self.daq is not None:
+            self.daq.start()
+
+    def _stop_devices(self, errors: list[str]) -> None:
+        if self.relay is not None:
+            _step(errors, "relay", self.relay.stop)
+        for g in self.gnss.values():
+            _step(errors, f"receiver {g.name}", g.stop)
+        for c in self.can:
+            _step(errors, f"CAN bus {c.cc.name}", c.stop)
+        if self.daq is not None:
+            _step(errors, f"DAQ {self.daq.dc.device}", self.daq.stop)
+
+    def _final_records(self) -> None:
+        if self.relay is not None:
+            self.relay.publish_stats()
+        self._align_daq()
+        self._timebase_records()
+        rig = self._rig
+        assert rig is not None
+        stats = self.recorder.stats()
+        rig.event(
+            EventKind.INFO, f"session {self.name}: devices stopped",
+            log_time_ns=self.timebase.host_to_utc(self.clock.now_ns()),
+            device_errors={d.name: d.errors for d in self._devices()},
+            dropped={s.name: s.dropped for s in stats if s.dropped},
+            daq_lost_samples=self.daq.lost if self.daq is not None else 0,
+        )
+
+    def _align_daq(self) -> None:
+        if self.daq is not None:
+            with self._marks_lock:
+                marks = sorted(self._marks)
+            self.daq.align(marks)
+
+    def _timebase_records(self) -> None:
+        rig = self._rig
+        assert rig is not None
+        now = self.clock.now_ns()
+        t = self.timebase.host_to_utc(now)
+        for rec in self.timebase.quality_json():
+            rig.put(T.TOPIC_TIMEBASE, t, now, rec)
+
+    def _housekeeping(self) -> None:
+        now = self.clock.now_ns()
+        next_stats = now + self.stats_period_ns
+        next_tb = now + self.timebase_period_ns
+        next_board = 0.0
+        while not self._hk_stop.wait(0.1):
+            try:
+                now = self.clock.now_ns()
+                for c in self.can:
+                    c.flush(older_than_ns=now - 2 * CAN_BLOCK_AGE_NS)
+                    c.retry()
+                if now >= next_stats:
+                    next_stats = now + self.stats_period_ns
+                    if self.relay is not None:
+                        self.relay.publish_stats()
+                if now >= next_tb:
+                    next_tb = now + self.timebase_period_ns
+                    self._align_daq()
+                    self._timebase_records()
+                mono = time.monotonic()
+                if mono >= next_board:
+                    next_board = mono + 0.5
+                    self._refresh_board()
+                if self.recorder.failed.is_set() and not self.failed.is_set():
+                    log.error("session %s: recording failed: %s", self.name, self.recorder.error)
+                    self.failed.set()
+            except Exception:  # housekeeping must go on; the cause is in the log
+                log.exception("session %s: housekeeping failed", self.name)
+
+    def _refresh_board(self) -> None:
+        rec = self.recorder
+        stats = rec.stats()
+        size = 0
+        for p in rec.parts:
+            with contextlib.suppress(OSError):
+                size += p.stat().st_size
+        try:
+            free = float(shutil.disk_usage(self.out_dir).free)
+        except OSError:
+            free = math.nan
+        self.board.recorder(
+            file=rec.parts[-1].name if rec.parts else "-",
+            bytes_written=size, messages_written=sum(s.written for s in stats), dropped=sum(s.dropped for s in stats),
+        )
+        self.board.free_disk(free / 1e6)
+        for g in self.gnss.values():
+            g.refresh()
+        if self.daq is not None:
+            self.daq.refresh()
+        self._refresh_vehicle()
+
+    def _refresh_vehicle(self) -> None:
+        """The live figures of the car: speed, baseline A–B against the configured one, sideslip, corrections."""
+        figures: dict[str, float] = {}
+        if self.relay is not None:
+            st = self.relay.relay.stats()
+            figures["relay_bytes_per_s"] = st.bytes_per_s
+            if st.last_correction_age_s is not None:
+                figures["correction_age_s"] = st.last_correction_age_s
+        ga = self.gnss.get(next((r.name for r in self.cfg.receivers if r.antenna == "a"), ""))
+        vel = ga.last_vel[1] if ga is not None and ga.last_vel is not None else None
+        if vel is not None:
+            figures["speed_kmh"] = vel.hor_spd_mps * 3.6
+        a, b = self._pos_a, self._pos_b
+        if a is not None and b is not None and a[0] == b[0]:
+            pa, pb = a[1], b[1]
+            e, n, u = pymap3d.geodetic2enu(pa.lat_deg, pa.lon_deg, pa.hgt_m, pb.lat_deg, pb.lon_deg, pb.hgt_m)
+            figures["baseline_m"] = math.sqrt(e * e + n * n + u * u)
+            if vel is not None and vel.hor_spd_mps > 2.0:
+                # heading of the baseline B → A, less the mounting offset in force, minus the course
+                heading = math.atan2(e, n) - math.radians(self.cfg.profile.calibration.mount_offset_deg)
+                beta = float(sideslip_from_azimuths(heading, math.radians(vel.trk_gnd_deg)))
+                figures["beta_deg"] = math.degrees(beta)
+            else:
+                figures["beta_deg"] = math.nan
+        figures.update(self.ltr.figures())
+        if figures:
+            self.board.vehicle(**figures)
+
+def _step(errors: list[str], what: str, fn: Callable[[], object]) -> None:
+    """Run one stop step; a failure is noted and the next steps still run."""
+    try:
+        fn()
+    except Exception as exc:
+        log.exception("stopping %s failed", what)
+        errors.append(f"{what}: {exc}")
+
+
+def summary_lines(summary: SessionSummary) -> list[str]:
+    """Human-readable lines about a finished session (for the CLI)."""
+    rec = summary.recording
+    head = (f"session {summary.name}: {rec.messages} messages in {len(rec.parts)} part(s), "
+            f"{'finalized' if rec.finalized else 'NOT finalized'}, dropped {rec.dropped}")
+    lines = [head]
+    lines += [f"  {p}" for p in rec.parts]
+    if rec.error is not None:
+        lines.append(f"  recording error: {rec.error}")
+    lines += [f"  {e}" for e in summary.errors]
+    bad = {k: v for k, v in summary.device_errors.items() if v}
+    if bad:
+        lines.append("  device errors: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
+    return lines
+
