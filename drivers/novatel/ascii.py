@@ -14,11 +14,17 @@ numbers in place of enum names. Decoding takes one frame; finding frames is the 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 from drivers.novatel.crc import novatel_crc32
 from drivers.novatel.enums import TimeStatus
 from drivers.novatel.layouts import (
     CODECS_BY_CLASS,
     CODECS_BY_NAME,
+    FAST_PATH_MISSES,
+    BodyCodec,
+    emit_ascii_body,
     split_abbreviated_fields,
     split_ascii_fields,
 )
@@ -30,8 +36,10 @@ from drivers.novatel.messages import (
     Log,
     Prompt,
     RawBody,
+    RecordEmitter,
     Response,
     ShortHeader,
+    compile_function,
     log_id_for_name,
     new_header,
     new_log,
@@ -101,6 +109,64 @@ def _short_header(fields: list[str], where: str) -> ShortHeader:
 _CODECS_BY_NAME_GET = CODECS_BY_NAME.get
 
 
+# --- Generated whole-log decoders ---------------------------------------------------------------
+# One generated function per typed log with a fixed layout, keyed by its ASCII name token
+# (``BESTPOSA``): from the split header and body tokens it builds header, body and log through
+# slot twins (see ``messages.RecordEmitter``). Anything outside its tables (a source suffix, an
+# unknown time status or enum name, a quoted token with a comma, too few fields, a number that
+# does not parse) raises one of ``FAST_PATH_MISSES`` and :func:`decode_ascii_verified` decodes the
+# line again through the generic path, which handles it or says what is wrong.
+
+
+def _compile_log_decoder(codec: BodyCodec) -> Callable[[list[str], list[str]], Log]:
+    ns: dict[str, Any] = {
+        "_time_status": dict(TimeStatus._member_map_),
+        "_message_name": codec.cls.MESSAGE_NAME,
+        "_message_id": codec.cls.MESSAGE_ID,
+        "_int": int,
+        "_float": float,
+    }
+    n = len(codec.specs)
+    tokens = [f"t{i}" for i in range(n)]
+    name = f"decode_ascii_log_{codec.cls.__name__}"
+    emit_h = RecordEmitter(Header, "hd", ns)
+    header = [
+        emit_h.begin(),
+        emit_h.store("message_name", "_message_name"),
+        emit_h.store("message_id", "_message_id"),
+        emit_h.store("port", "port"),
+        emit_h.store("sequence", "_int(seq)"),
+        emit_h.store("idle_time_pct", "_float(idle)"),
+        emit_h.store("time_status", "_time_status[tstat]"),
+        emit_h.store("week", "_int(week)"),
+        emit_h.store("seconds", "_float(seconds)"),
+        emit_h.store("receiver_status", "_int(rxs, 16)"),
+        emit_h.store("reserved", "_int(res, 16)"),
+        emit_h.store("sw_version", "_int(sw)"),
+        emit_h.store("source", "0"),
+        emit_h.store("response", "False"),
+        emit_h.end(),
+    ]
+    body = emit_ascii_body(codec.specs, RecordEmitter(codec.cls, "bd", ns), tokens, ns)
+    emit_log = RecordEmitter(Log, "lg", ns)
+    tail = [emit_log.begin(), emit_log.store("header", "hd"), emit_log.store("body", "bd"), emit_log.end()]
+    lines = [
+        f"def {name}(head, body):",
+        "    _name, port, seq, idle, tstat, week, seconds, rxs, res, sw = head",
+        f"    {', '.join(tokens)}, = body[:{n}]",
+        *("    " + line for line in (*header, *body, *tail)),
+        "    return lg",
+    ]
+    function: Callable[[list[str], list[str]], Log] = compile_function(name, lines, ns)
+    return function
+
+
+FAST_ASCII_DECODERS: dict[str, Callable[[list[str], list[str]], Log]] = {
+    codec.cls.MESSAGE_NAME + "A": _compile_log_decoder(codec) for codec in CODECS_BY_NAME.values() if codec.fixed_layout
+}
+_FAST_ASCII_GET = FAST_ASCII_DECODERS.get
+
+
 def decode_ascii_verified(frame: bytes) -> tuple[Log, str | None]:
     """Decode a ``#``/``%`` ASCII frame (``#…*xxxxxxxx``) whose CRC is already verified.
 
@@ -110,12 +176,35 @@ def decode_ascii_verified(frame: bytes) -> tuple[Log, str | None]:
         DecodeError: the header does not parse.
     """
     star = frame.rfind(b"*")
-    text = frame[1 : star if star > 0 else len(frame)].decode("latin-1")
+    return decode_ascii_text(frame[0], frame[1 : star if star > 0 else len(frame)].decode("latin-1"))
+
+
+def decode_ascii_text(sync: int, text: str) -> tuple[Log, str | None]:
+    """Same as :func:`decode_ascii_verified`, given the sync byte and the text between it and ``*``."""
+    if sync == 0x23:  # '#': try the generated decoder of the log name
+        head_text, sep, body_text = text.partition(";")
+        head = head_text.split(",")
+        fast = _FAST_ASCII_GET(head[0])
+        if fast is not None and sep:
+            try:
+                return fast(head, body_text.split(",")), None
+            except FAST_PATH_MISSES:
+                pass
+    return _decode_ascii_text(sync, text)
+
+
+def decode_ascii_verified_reference(frame: bytes) -> tuple[Log, str | None]:
+    """Same as :func:`decode_ascii_verified` through the generic path only."""
+    star = frame.rfind(b"*")
+    return _decode_ascii_text(frame[0], frame[1 : star if star > 0 else len(frame)].decode("latin-1"))
+
+
+def _decode_ascii_text(sync: int, text: str) -> tuple[Log, str | None]:
     head_text, sep, body_text = text.partition(";")
     if not sep:
         raise DecodeError("NovAtel ASCII log has no ';' between header and body")
     header: Header | ShortHeader
-    if frame[0] == 0x25:  # '%'
+    if sync == 0x25:  # '%'
         header = _short_header(head_text.split(","), "short ASCII")
     else:
         header = _long_header(head_text.split(","), True, "ASCII")

@@ -12,7 +12,11 @@ Recognised frames (:class:`FrameKind`):
 The framer is incremental: :meth:`Framer.feed` takes any chunk and returns the frames completed
 so far (a frame split across chunks is reassembled); :meth:`Framer.finish` ends the stream.
 :class:`FrameReader` drives it from any object with ``read(n)``. Sync candidates are found with
-one compiled regular expression (a C-level scan), CRCs run in C (zlib) for NovAtel frames.
+one compiled regular expression (a C-level scan), CRCs run in C (zlib) for NovAtel frames. The
+common case, a standard long-header binary log, is handled inline in the scan loop and decoded by
+a generated whole-frame decoder (:func:`drivers.novatel.binary.compile_long_frame_decoders`);
+everything else, and anything that decoder declines, goes through the per-kind parsers with the
+same result.
 
 A frame whose CRC fails is never returned. Every byte that is not part of a returned frame is
 counted in :class:`FramerStats` by reason (garbage, CRC failure, truncated, oversize), and CR/LF
@@ -40,9 +44,9 @@ from typing import Any, Protocol
 import pynmea2
 from pyrtcm import RTCMReader
 
-from drivers.novatel.ascii import decode_abbreviated_lines, decode_ascii_verified
-from drivers.novatel.binary import decode_verified
-from drivers.novatel.crc import crc24q, novatel_crc32, xor_checksum
+from drivers.novatel.ascii import decode_abbreviated_lines, decode_ascii_text
+from drivers.novatel.binary import compile_long_frame_decoders, decode_verified
+from drivers.novatel.crc import crc24q, xor_checksum
 from drivers.novatel.messages import Log, Prompt, Response, fast_constructor
 from vsccore.errors import DecodeError
 
@@ -115,6 +119,11 @@ class Frame:
 
 
 _new_frame = fast_constructor(Frame)
+_BINARY = FrameKind.NOVATEL_BINARY
+_crc32 = zlib.crc32
+# Generated decoders that turn a verified standard long-header binary frame straight into a Frame.
+_FAST_FRAMES, _fast_raw_frame = compile_long_frame_decoders((Frame, _BINARY))
+_FAST_FRAMES_GET = _FAST_FRAMES.get
 
 
 def _zero_counts(keys: type[Enum]) -> dict[Any, int]:
@@ -182,7 +191,10 @@ _OVERSIZE = 5  # payload: kind
 _Result = tuple[int, int, Any]
 
 _SYNC = re.compile(rb"[#%<\[$\xaa\xd3]")
-_HEX8 = re.compile(rb"[0-9A-Fa-f]{8}")
+_SYNC_BYTES = b"#%<[$\xaa\xd3"
+#: Sync and header length of a standard long-header binary log.
+_LONG_SYNC_28 = b"\xaa\x44\x12\x1c"
+_HEX_DIGITS = b"0123456789ABCDEFabcdef"
 _HEX2 = re.compile(rb"[0-9A-Fa-f]{2}")
 _LINE_BREAK = re.compile(rb"[\r\n]")
 _PROMPT = re.compile(rb"\[([A-Z][A-Z0-9_]{0,15})\]")
@@ -281,29 +293,65 @@ class Framer:
         n = len(buf)
         pos = 0
         out: list[Frame] = []
+        append = out.append
         stats = self.stats
         search = _SYNC.search
         parsers = self._parsers
+        fast_binary = self._decode_logs
+        max_len = self.max_frame_len
+        fast_count = 0  # frames taken by the inline binary path; added to the stats at the end
+        fast_bytes = 0
+        line_ends = 0
+        span_rel = self._span_end - self._base  # the current rejected span ends at buf[span_rel]
         while pos < n:
-            m = search(buf, pos)
-            if m is None:
-                self._skip(buf, pos, n)
-                pos = n
-                break
-            start = m.start()
-            if start > pos:
+            if buf[pos] in _SYNC_BYTES:  # back-to-back frames: no search needed
+                start = pos
+            else:
+                m = search(buf, pos)
+                if m is None:
+                    self._skip(buf, pos, n)
+                    pos = n
+                    break
+                start = m.start()
                 self._skip(buf, pos, start)
+            # Inline path for the common case, a complete long-header binary log with the standard
+            # header length and a good CRC: the same checks and result as _parse_binary, without
+            # its dispatch, result tuple and wrapper calls. Anything else takes the general path.
+            if fast_binary and start + 10 <= n and buf.startswith(_LONG_SYNC_28, start):
+                total = 32 + (buf[start + 8] | buf[start + 9] << 8)
+                end = start + total
+                if end <= n and total <= max_len:
+                    raw = buf[start:end]
+                    if _crc32(raw, 0xFFFFFFFF) == 0xFFFFFFFF:
+                        try:
+                            frame = _FAST_FRAMES_GET(buf[start + 4] | buf[start + 5] << 8, _fast_raw_frame)(raw)
+                        except KeyError:
+                            frame = None
+                        if frame is not None:
+                            if start < span_rel:  # an accepted frame ends the rejected span
+                                self._span_end = self._base + start
+                                span_rel = start
+                            append(frame)
+                            fast_count += 1
+                            fast_bytes += total
+                            pos = end
+                            continue
             status, end, payload = parsers[buf[start]](buf, start, n, final)
             if status == _OK:
                 if self._base + start < self._span_end:
                     self._span_end = self._base + start
-                out.append(payload)
+                append(payload)
                 stats.frames[payload.kind] += 1
                 stats.bytes_in_frames += end - start
                 if payload.error is not None:
                     stats.decode_errors[payload.kind] += 1
                     _log.debug("NovAtel framer: %s frame decode error: %s", payload.kind.value, payload.error)
                 pos = end
+                # The CR LF after a text frame: counted here instead of by a search and _skip (an
+                # accepted frame ends any rejected span, so these bytes are never in one).
+                if buf[end : end + 2] == b"\r\n":
+                    line_ends += 2
+                    pos = end + 2
             elif status == _NEED:
                 if not final:
                     pos = start
@@ -335,6 +383,11 @@ class Framer:
                 self._reject(start, start + 1, SkipReason.OVERSIZE)
                 self._skip(buf, start, start + 1)
                 pos = start + 1
+            span_rel = self._span_end - self._base
+        if fast_count:
+            stats.frames[_BINARY] += fast_count
+            stats.bytes_in_frames += fast_bytes
+        stats.line_end_bytes += line_ends
         self._base += pos
         self._buf = buf[pos:] if pos < n else b""
         return out
@@ -418,31 +471,34 @@ class Framer:
             if limit - start >= self.max_frame_len:
                 return _OVERSIZE, 0, kind
             return _NEED, 0, kind
-        brk = _LINE_BREAK.search(buf, start + 2, star)
-        if brk is not None:
-            return self._text_cut(buf, start, brk.start(), kind)
+        nl = buf.find(b"\n", start + 2, star)
+        cr = buf.find(b"\r", start + 2, star)
+        if nl >= 0 or cr >= 0:
+            return self._text_cut(buf, start, min(nl, cr) if nl >= 0 and cr >= 0 else max(nl, cr), kind)
         end = star + 9
         if end > n:
             if n > star + 1 and not _is_hex_prefix(buf, star + 1, n):
                 return self._text_cut(buf, start, star + 1, kind)
             return _NEED, 0, kind
-        if _HEX8.fullmatch(buf, star + 1, end) is None:
+        crc_text = buf[star + 1 : end]
+        if crc_text.strip(_HEX_DIGITS):  # something other than 8 hex digits
             return self._text_cut(buf, start, star + 1, kind)
-        raw = buf[start:end]
-        if novatel_crc32(memoryview(raw)[1 : star - start]) != int(raw[-8:], 16):
+        inner = buf[start + 1 : star]
+        if _crc32(inner, 0xFFFFFFFF) ^ 0xFFFFFFFF != int(crc_text, 16):
             # A header has commas (its ';' may be the very byte that was corrupted): without one this
             # was never a log, with one it is a log that failed its CRC.
             if buf.find(b",", start, star) < 0:
                 return _NOT_FRAME, 0, None
             # A new log starting before this one's CRC means this one was cut short.
-            inner = buf.find(buf[start : start + 1], start + 1, star)
-            if inner >= 0:
-                return _TRUNC, inner, kind
+            inner_start = buf.find(buf[start : start + 1], start + 1, star)
+            if inner_start >= 0:
+                return _TRUNC, inner_start, kind
             return _CRC_FAIL, end, kind
+        raw = buf[start:end]
         if not self._decode_logs:
             return _OK, end, _new_frame(kind, raw, None, None)
         try:
-            log, error = decode_ascii_verified(raw)
+            log, error = decode_ascii_text(buf[start], inner.decode("latin-1"))
         except DecodeError as exc:
             return _OK, end, Frame(kind, raw, None, str(exc))
         return _OK, end, _new_frame(kind, raw, log, error)

@@ -34,7 +34,9 @@ from drivers.novatel.messages import (
     MarkTime,
     Message,
     PsrDop,
+    RecordEmitter,
     Time,
+    compile_function,
 )
 from vsccore.errors import DecodeError, EncodeError
 
@@ -297,9 +299,13 @@ def split_abbreviated_fields(text: str) -> list[str]:
 # --- Generated fast decoders -----------------------------------------------------------------
 # Decoding is the hot path (20-50 Hz per receiver, and whole captures offline). For each layout
 # the table is turned once into straight-line Python: one unpack (binary) or one tuple unpack
-# (ASCII), then each value converted in place and stored through the slot's descriptor, with no
-# per-field loop, function dispatch or dataclass __init__. The generic methods of BodyCodec stay
-# the reference (and name the failing field on errors); tests check both agree.
+# (ASCII), each value converted in place (enums by dict subscript, no call) and stored into a
+# slot twin of the dataclass (see ``messages.RecordEmitter``), with no per-field loop, function
+# dispatch or dataclass ``__init__``. A value the fast code does not take (an enum value missing
+# from the table, a quoted token, a number that does not parse) raises KeyError / ValueError /
+# IndexError and the caller decodes the same input again through the generic, table-walking
+# methods of BodyCodec, which create UNKNOWN_ enum members, split quoted text, and name the
+# failing field. Tests check that both paths agree.
 
 _STR_CACHE: dict[bytes, str] = {}
 
@@ -311,54 +317,88 @@ def _decode_str4(raw: bytes) -> str:
     return text
 
 
+def _token_str(token: str) -> str:
+    """A STR token for the fast path: a plain token, or one quoted string without inner quotes.
+
+    Raises:
+        ValueError: any other use of ``"`` (the generic splitter must handle that line).
+    """
+    if '"' not in token:
+        return token
+    if len(token) >= 2 and token[0] == '"' and token[-1] == '"' and '"' not in token[1:-1]:
+        return token[1:-1]
+    raise ValueError(f"token {token!r} needs the generic ASCII splitter")
+
+
+#: Exceptions by which generated decoders hand an input back to the generic path.
+FAST_PATH_MISSES = (KeyError, ValueError, IndexError)
+
+
+def emit_binary_body(
+    specs: Sequence[FieldSpec], emit: RecordEmitter, values: Sequence[str], ns: dict[str, Any]
+) -> list[str]:
+    """Lines that build a body from unpacked binary values (names in ``values``)."""
+    ns.setdefault("_str_get", _STR_CACHE.get)
+    ns.setdefault("_str_dec", _decode_str4)
+    lines = [emit.begin()]
+    for i, (spec, value) in enumerate(zip(specs, values, strict=True)):
+        if spec.kind is Kind.ENUM:
+            assert spec.enum is not None
+            table = f"_by_value_{emit.var}{i}"
+            ns[table] = dict(spec.enum._value2member_map_)
+            expr = f"{table}[{value}]"
+        elif spec.kind is Kind.STR:
+            expr = f"(_str_get({value}) or _str_dec({value}))"
+        else:
+            expr = value
+        lines.append(emit.store(spec.name, expr))
+    lines.append(emit.end())
+    return lines
+
+
+def emit_ascii_body(
+    specs: Sequence[FieldSpec], emit: RecordEmitter, tokens: Sequence[str], ns: dict[str, Any]
+) -> list[str]:
+    """Lines that build a body from ASCII tokens (names in ``tokens``)."""
+    ns.setdefault("_float", float)
+    ns.setdefault("_int", int)
+    ns.setdefault("_token_str", _token_str)
+    lines = [emit.begin()]
+    for i, (spec, token) in enumerate(zip(specs, tokens, strict=True)):
+        if spec.kind is Kind.ENUM:
+            assert spec.enum is not None
+            table = f"_by_name_{emit.var}{i}"
+            ns[table] = dict(spec.enum._member_map_)
+            expr = f"{table}[{token}]"
+        elif spec.kind is Kind.STR:
+            expr = f"_token_str({token})"
+        elif spec.kind is Kind.FLOAT:
+            expr = f"_float({token})"
+        elif spec.kind is Kind.INT:
+            expr = f"_int({token})"
+        else:
+            expr = f"_int({token}, 16)"
+        lines.append(emit.store(spec.name, expr))
+    lines.append(emit.end())
+    return lines
+
+
 def _compile_decoders(
     cls: type[Message], specs: Sequence[FieldSpec], unpack: Callable[..., tuple[Any, ...]]
 ) -> tuple[Callable[[bytes], Any], Callable[[Sequence[str]], Any]]:
-    ns: dict[str, Any] = {
-        "_new": object.__new__,
-        "_cls": cls,
-        "_unpack": unpack,
-        "_str_get": _STR_CACHE.get,
-        "_str_dec": _decode_str4,
-        "_float": float,
-        "_int": int,
-    }
     n = len(specs)
-    binary = [f"def decode_binary_{cls.__name__}(body):"]
-    binary.append("    " + ", ".join(f"a{i}" for i in range(n)) + ", = _unpack(body)")
-    binary.append("    obj = _new(_cls)")
-    ascii_ = [f"def decode_ascii_{cls.__name__}(tokens):"]
-    ascii_.append("    " + ", ".join(f"t{i}" for i in range(n)) + f", = tokens[:{n}]")
-    ascii_.append("    obj = _new(_cls)")
-    for i, spec in enumerate(specs):
-        ns[f"_set{i}"] = getattr(cls, spec.name).__set__
-        if spec.kind is Kind.ENUM:
-            assert spec.enum is not None
-            ns[f"_by_value{i}"] = dict(spec.enum._value2member_map_).get
-            ns[f"_by_name{i}"] = dict(spec.enum._member_map_).get
-            ns[f"_enum{i}"] = spec.enum
-            binary.append(f"    m = _by_value{i}(a{i})")
-            binary.append(f"    _set{i}(obj, m if m is not None else _enum{i}(a{i}))")
-            ascii_.append(f"    m = _by_name{i}(t{i})")
-            ascii_.append(f"    _set{i}(obj, m if m is not None else _enum{i}.from_token(t{i}))")
-        elif spec.kind is Kind.STR:
-            binary.append(f"    m = _str_get(a{i})")
-            binary.append(f"    _set{i}(obj, m if m is not None else _str_dec(a{i}))")
-            ascii_.append(
-                f"    _set{i}(obj, t{i}[1:-1] if len(t{i}) >= 2 and t{i}[0] == '\"' and t{i}[-1] == '\"' else t{i})"
-            )
-        else:
-            binary.append(f"    _set{i}(obj, a{i})")
-            if spec.kind is Kind.FLOAT:
-                ascii_.append(f"    _set{i}(obj, _float(t{i}))")
-            elif spec.kind is Kind.INT:
-                ascii_.append(f"    _set{i}(obj, _int(t{i}))")
-            else:
-                ascii_.append(f"    _set{i}(obj, _int(t{i}, 16))")
+    values = [f"a{i}" for i in range(n)]
+    tokens = [f"t{i}" for i in range(n)]
+    ns: dict[str, Any] = {"_unpack": unpack}
+    binary = [f"def decode_binary_{cls.__name__}(body):", "    " + ", ".join(values) + ", = _unpack(body)"]
+    binary += ["    " + line for line in emit_binary_body(specs, RecordEmitter(cls, "obj", ns), values, ns)]
     binary.append("    return obj")
+    ascii_ = [f"def decode_ascii_{cls.__name__}(tokens):", "    " + ", ".join(tokens) + f", = tokens[:{n}]"]
+    ascii_ += ["    " + line for line in emit_ascii_body(specs, RecordEmitter(cls, "obj", ns), tokens, ns)]
     ascii_.append("    return obj")
-    exec("\n".join(binary) + "\n\n" + "\n".join(ascii_) + "\n", ns)  # source built from the table only
-    return ns[f"decode_binary_{cls.__name__}"], ns[f"decode_ascii_{cls.__name__}"]
+    decode_binary = compile_function(f"decode_binary_{cls.__name__}", binary, ns)
+    decode_ascii = compile_function(f"decode_ascii_{cls.__name__}", ascii_, ns)
+    return decode_binary, decode_ascii
 
 
 # --- Per-message codecs ----------------------------------------------------------------------
@@ -423,6 +463,11 @@ class BodyCodec:
 
     # binary
 
+    @property
+    def fixed_layout(self) -> bool:
+        """True when the body is exactly the field table (no variable-length tail)."""
+        return self._fast_binary is not None
+
     def decode_binary_values(self, body: bytes, offset: int = 0) -> list[Any]:
         """Field values (enums and strings converted) from a binary body."""
         values = list(self.struct.unpack_from(body, offset))
@@ -443,7 +488,10 @@ class BodyCodec:
                 f"NovAtel {self.cls.MESSAGE_NAME} binary body has {len(body)} bytes, layout needs {self.size}"
             )
         if self._fast_binary is not None:
-            return self._fast_binary(body)
+            try:
+                return self._fast_binary(body)
+            except KeyError:
+                pass  # an enum value missing from the table: the generic path makes an UNKNOWN_ member
         return self.cls(*self.decode_binary_values(body))
 
     def decode_binary_reference(self, body: bytes) -> Message:
@@ -504,8 +552,8 @@ class BodyCodec:
         if self._fast_ascii is not None and len(tokens) >= len(self.specs):
             try:
                 return self._fast_ascii(tokens)
-            except (ValueError, KeyError, IndexError):
-                pass  # the generic path below says which field failed
+            except FAST_PATH_MISSES:
+                pass  # the generic path below takes it, or says which field failed
         return self.cls(*self.decode_tokens(tokens))
 
     def decode_ascii_reference(self, tokens: Sequence[str]) -> Message:

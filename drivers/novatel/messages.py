@@ -491,30 +491,122 @@ def make_short_header(body: Message | type[Message], *, week: int, seconds: floa
 
 _T = TypeVar("_T")
 
+# --- Fast construction of frozen records -----------------------------------------------------
+# Decoding builds four frozen dataclasses per frame (header, body, log, frame) with up to 28
+# fields each; their generated ``__init__`` (``object.__setattr__`` per field) and even a direct
+# store through each slot's member descriptor cost more than the whole wire decode. CPython
+# stores into a *plain* slotted class's slots with a specialised STORE_ATTR (no call), and lets
+# an object change its ``__class__`` to any class with the same slot layout. So a record is
+# built as an instance of a mutable "twin" class with the same slots and then given its real,
+# frozen class: the result is an ordinary instance of the dataclass (equality, hashing, repr,
+# pickling, ``dataclasses.replace`` and frozenness unchanged). The twin is checked when it is
+# made; where the interpreter refuses the class change, the emitter falls back to descriptor
+# stores.
 
-def fast_constructor(cls: type[_T]) -> Callable[..., _T]:
+_TWINS: dict[type, type | None] = {}
+
+
+def slot_twin(cls: type) -> type | None:
+    """Mutable class with the slot layout of slotted class ``cls`` (None when not possible).
+
+    ``obj = object.__new__(twin)``, plain attribute stores, then ``obj.__class__ = cls`` gives a
+    fully initialised instance of ``cls`` without running its ``__init__``/``__setattr__``.
+    """
+    layers = [k for k in cls.__mro__[:-1] if vars(k).get("__slots__")]
+    if len(layers) != 1 or "__dict__" in vars(cls) or isinstance(vars(layers[0])["__slots__"], str):
+        return None
+    layer = layers[0]
+    if layer in _TWINS:
+        twin = _TWINS[layer]
+    else:
+        slots = tuple(vars(layer)["__slots__"])
+        twin = type(f"_{layer.__name__}Twin", (), {"__slots__": slots, "__module__": cls.__module__})
+        _TWINS[layer] = twin
+    if twin is None:
+        return None
+    probe: Any = object.__new__(twin)
+    for name in vars(layer)["__slots__"]:
+        setattr(probe, name, None)
+    try:
+        probe.__class__ = cls
+    except TypeError:
+        return None
+    return twin
+
+
+class RecordEmitter:
+    """Emits lines of generated Python that build one instance of a frozen slotted dataclass.
+
+    ``begin()``, then ``store(field, expression)`` for every field, then ``end()``; the names the
+    lines use are put into the generated code's namespace ``ns``. ``use_twin=False`` forces the
+    slower descriptor stores (the twin-less fallback, kept testable).
+    """
+
+    __slots__ = ("_fields", "_stored", "_tag", "_twin", "cls", "var")
+
+    def __init__(self, cls: type, var: str, ns: dict[str, Any], *, use_twin: bool = True) -> None:
+        if not is_dataclass(cls) or "__slots__" not in vars(cls) or hasattr(cls, "__post_init__"):
+            raise TypeError(f"{cls.__name__} is not a slotted dataclass without __post_init__")
+        self.cls = cls
+        self.var = var
+        self._tag = f"{var}_{cls.__name__}"
+        self._fields = tuple(f.name for f in fields(cls))
+        self._stored: set[str] = set()
+        self._twin = slot_twin(cls) if use_twin else None
+        ns["_new"] = object.__new__
+        ns[f"_cls_{self._tag}"] = cls
+        if self._twin is not None:
+            ns[f"_twin_{self._tag}"] = self._twin
+        else:
+            for name in self._fields:
+                ns[f"_set_{self._tag}_{name}"] = getattr(cls, name).__set__
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        return self._fields
+
+    def begin(self) -> str:
+        self._stored.clear()
+        kind = "twin" if self._twin is not None else "cls"
+        return f"{self.var} = _new(_{kind}_{self._tag})"
+
+    def store(self, name: str, expr: str) -> str:
+        if name not in self._fields:
+            raise TypeError(f"{self.cls.__name__} has no field {name!r}")
+        self._stored.add(name)
+        if self._twin is not None:
+            return f"{self.var}.{name} = {expr}"
+        return f"_set_{self._tag}_{name}({self.var}, {expr})"
+
+    def end(self) -> str:
+        missing = [name for name in self._fields if name not in self._stored]
+        if missing:  # an unset slot would only fail later, on first access
+            raise TypeError(f"generated {self.cls.__name__} leaves fields unset: {', '.join(missing)}")
+        return f"{self.var}.__class__ = _cls_{self._tag}" if self._twin is not None else "pass"
+
+
+def compile_function(name: str, lines: list[str], ns: dict[str, Any]) -> Callable[..., Any]:
+    """Compile generated source (built only from field tables and identifiers) into a function."""
+    source = "\n".join(lines) + "\n"
+    exec(compile(source, f"<generated {name}>", "exec"), ns)  # no outside input reaches the source
+    function: Callable[..., Any] = ns[name]
+    return function
+
+
+def fast_constructor(cls: type[_T], *, use_twin: bool = True) -> Callable[..., _T]:
     """Positional constructor of a frozen slotted dataclass that skips the generated ``__init__``.
 
-    A frozen dataclass's ``__init__`` assigns each field through ``object.__setattr__`` looked up
-    at every call, which dominates decoding time for logs with 20+ fields. This builds (once per
-    class) a straight-line function that stores each argument through the slot's member
-    descriptor, about twice as fast. Only for dataclasses whose fields are all plain ``init``
-    fields and that define no ``__post_init__``; the result is indistinguishable from
-    ``cls(*args)`` (equality, hashing, repr, pickling).
+    Takes every field positionally (defaults are not applied) and returns an instance
+    indistinguishable from ``cls(*args)``. Only for dataclasses that define no
+    ``__post_init__``.
     """
-    if not is_dataclass(cls) or "__slots__" not in vars(cls) or hasattr(cls, "__post_init__"):
-        raise TypeError(f"{cls.__name__} is not a slotted dataclass without __post_init__")
-    names = [f.name for f in fields(cls) if f.init]
-    namespace: dict[str, Any] = {"_new": object.__new__, "_cls": cls}
-    lines = []
-    for i, name in enumerate(names):
-        namespace[f"_set{i}"] = getattr(cls, name).__set__
-        lines.append(f"    _set{i}(obj, a{i})")
-    args = ", ".join(f"a{i}" for i in range(len(names)))
-    source = f"def new_{cls.__name__}({args}):\n    obj = _new(_cls)\n" + "\n".join(lines) + "\n    return obj\n"
-    exec(source, namespace)  # generated from field names only, no outside input
-    constructor: Callable[..., _T] = namespace[f"new_{cls.__name__}"]
-    return constructor
+    ns: dict[str, Any] = {}
+    emit = RecordEmitter(cls, "obj", ns, use_twin=use_twin)
+    args = [f"a{i}" for i in range(len(emit.fields))]
+    lines = [f"def new_{cls.__name__}({', '.join(args)}):", "    " + emit.begin()]
+    lines += ["    " + emit.store(name, arg) for name, arg in zip(emit.fields, args, strict=True)]
+    lines += ["    " + emit.end(), "    return obj"]
+    return compile_function(f"new_{cls.__name__}", lines, ns)
 
 
 #: Fast positional constructors of the records built on every decoded frame.
