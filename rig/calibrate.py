@@ -84,6 +84,13 @@ def _today() -> str:
     return dt.date.today().isoformat()
 
 
+def _window_bounds(t: FloatArray) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], FloatArray]:
+    half = 0.5 * _YAW_FROM_HEADING_WINDOW_S
+    lo = np.searchsorted(t, t - half)
+    hi = np.clip(np.searchsorted(t, t + half, side="right") - 1, 0, t.size - 1)
+    return lo, hi, t[hi] - t[lo]
+
+
 def _yaw_rate_from_heading(g: DualGnss) -> FloatArray:
     """Yaw rate (rad/s) from the baseline heading: differences over ±0.5 s (noise σ_ψ·√2 / 1 s, not ·20 Hz)."""
     az = np.where(g.valid & g.rtk_fixed_both, g.baseline_azimuth_rad, np.nan)
@@ -92,14 +99,24 @@ def _yaw_rate_from_heading(g: DualGnss) -> FloatArray:
     if ok.sum() > 2:
         t = g.t_s[ok]
         psi = unwrap(-az[ok])  # yaw angle increases counter-clockwise; azimuth clockwise
-        half = 0.5 * _YAW_FROM_HEADING_WINDOW_S
-        lo = np.searchsorted(t, t - half)
-        hi = np.clip(np.searchsorted(t, t + half, side="right") - 1, 0, t.size - 1)
-        span = t[hi] - t[lo]
+        lo, hi, span = _window_bounds(t)
         with np.errstate(invalid="ignore", divide="ignore"):
-            rr = np.where(span > 0.5 * half, (psi[hi] - psi[lo]) / span, np.nan)
+            rr = np.where(span > 0.25 * _YAW_FROM_HEADING_WINDOW_S, (psi[hi] - psi[lo]) / span, np.nan)
         r[ok] = rr
     return r
+
+
+def _window_mean(t: FloatArray, r: FloatArray) -> FloatArray:
+    """``r`` averaged over the same ±0.5 s windows as :func:`_yaw_rate_from_heading` (trapezoidal integral)."""
+    out = np.full(t.size, np.nan)
+    ok = np.isfinite(r)
+    if ok.sum() > 2:
+        tt, rr = t[ok], r[ok]
+        integral = np.concatenate(([0.0], np.cumsum(0.5 * (rr[1:] + rr[:-1]) * np.diff(tt))))
+        lo, hi, span = _window_bounds(tt)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[ok] = np.where(span > 0.25 * _YAW_FROM_HEADING_WINDOW_S, (integral[hi] - integral[lo]) / span, np.nan)
+    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -122,8 +139,11 @@ def _yaw_rate_at_epochs(inputs: SessionInputs, g: DualGnss) -> YawRate:
         both = np.isfinite(r) & np.isfinite(r_gnss) & (g.speed_mps > 2.0)
         if both.sum() < 20:
             return YawRate(r, f"CAN yaw_rate ({s.source}; zero offset not checked: too few GNSS epochs)", 0.0)
-        bias = float(np.median(r[both] - r_gnss[both]))
-        p90 = float(np.percentile(np.abs(r[both] - bias - r_gnss[both]), 90))
+        # compare like with like: the CAN rate averaged over the same windows as the heading differences
+        r_avg = _window_mean(g.t_s, r)
+        both &= np.isfinite(r_avg)
+        bias = float(np.median(r_avg[both] - r_gnss[both]))
+        p90 = float(np.percentile(np.abs(r_avg[both] - bias - r_gnss[both]), 90))
         if p90 <= _YAW_RATE_AGREEMENT_RPS:
             return YawRate(r - bias, f"CAN yaw_rate ({s.source})", bias)
         why = (f"CAN yaw_rate disagrees with the GNSS heading rate (90th percentile of the difference "

@@ -116,6 +116,7 @@ def run_demo(out_dir: Path, *, fast: bool = False, config: Path | None = None) -
                        config=config or demo_config_path())
 
     _stage(result, "record", record_stage)
+    _stage(result, "calibrate", lambda: _calibrate(out_dir / "session" / "demo", out_dir))
     return result
 
 
@@ -200,3 +201,21 @@ def _plot_truth(truth: GroundTruth, path: Path) -> None:
         a.grid(True, lw=0.3)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _calibrate(session: Path, out_dir: Path) -> tuple[str, tuple[Path, ...]]:
+    """Mounting offset and optical zero from the straight runs, recorded next to the session."""
+    from rig.calibrate import baseline_record, calibrate_baseline, format_baseline, optical_record, plot_baseline
+    from rig.sessiondata import load_inputs, update_calibration_file
+
+    inputs = load_inputs(session, truth=True, optical=True)
+    cal = calibrate_baseline(inputs)
+    files = [plot_baseline(cal, out_dir / "calibrate-baseline.png")]
+    files.append(update_calibration_file(session, "mount_offset", baseline_record(cal)))
+    if cal.optical:
+        files.append(update_calibration_file(session, "optical_zero", optical_record(cal)))
+    text = format_baseline(cal)
+    head = f"mounting offset {cal.offset_deg:+.3f}° ± {cal.u95_deg:.3f}° (95 %)"
+    if cal.truth_offset_deg is not None:
+        head += f", simulator truth {cal.truth_offset_deg:+.3f}° (error {cal.offset_deg - cal.truth_offset_deg:+.3f}°)"
+    return head + "\n" + "\n".join("    " + line for line in text.splitlines()), tuple(files)
