@@ -50,3 +50,21 @@ def test_debug_shows_traceback(tmp_path) -> None:
     assert proc.returncode != 0
     assert "Traceback" in proc.stderr
     assert "ConfigFileError" in proc.stderr
+
+
+def test_a_command_exit_code_is_kept(monkeypatch: pytest.MonkeyPatch) -> None:
+    """typer.Exit(1) from a command (e.g. `rig validate` on FAIL) must reach the shell as 1."""
+    import typer
+
+    from rig.cli import main as main_module
+
+    probe = typer.Typer()
+
+    @probe.command()
+    def fail() -> None:
+        raise typer.Exit(1)
+
+    monkeypatch.setattr(main_module, "app", probe)
+    with pytest.raises(SystemExit) as excinfo:
+        main_module.main([])
+    assert excinfo.value.code == 1

@@ -14,15 +14,43 @@ masses are neglected. In fast transients the body's roll inertia carries part of
 with the roll acceleration φ̈ and the body's roll inertia I_x about the roll axis, the springs
 and dampers (hence the wheels) see I_x·φ̈ less, LTR −= 2·I_x·φ̈ / (m·g·t) (optional).
 
-Prediction: the LTR record is resampled to ``rate_hz``; on a sliding window of the last
-``window_s`` (growing from ``min_window_s`` at the start) an autoregressive model of the LTR's
-*increments* (an ARIMA(p, 1, 0): a held LTR stays held instead of decaying to the window's
-mean), its order chosen by AIC (as statsmodels ``ar_select_order`` does it; a NumPy
-re-implementation by default for speed, checked against it), is refitted every
-``refit_every_s`` and iterated forward 1, 2 and 3 s; a fit with a root near the unit circle is
-rejected in favour of holding the current value. A warning fires at every epoch where a
-prediction (or the LTR itself) reaches ``threshold`` (0.9) in magnitude. Predictions are
-clipped to [−1, 1], the physical range.
+Roll angle without a roll sensor (:class:`RollModel`): the body rolls about the roll axis under
+the specific force its suspended mass feels, which is exactly what a body-fixed lateral
+accelerometer reads (a_m = a_y cos φ + g sin φ):
+
+    I_φ·φ̈ + C_φ·φ̇ + K_φ·φ = m·(h − h_r)·a_m
+
+so φ follows from a_m through this linear second-order filter (roll stiffness, damping and
+inertia from the vehicle profile); the static roll gain is k_φ = m(h − h_r) / (K_φ − m g (h − h_r)).
+
+Prediction (:func:`predict_ltr`): the LTR record is resampled to ``rate_hz``; on a sliding
+window of the last ``window_s`` (growing from ``min_window_s`` at the start) a model is refitted
+every ``refit_every_s`` and iterated forward 1, 2 and 3 s. Two models:
+
+- ``ar`` (the classic method): an autoregressive model of the LTR's *increments* (an
+  ARIMA(p, 1, 0): a held LTR stays held instead of decaying to the window's mean), its order
+  chosen by AIC (as statsmodels ``ar_select_order`` does it; a NumPy re-implementation by
+  default for speed, checked against it). It only extrapolates the LTR's own past, so it cannot
+  know where the LTR will settle after a steering input.
+- ``arx`` (with ``exogenous``): y[k] = Σ a_i·y[k−i] + Σ b_j·u[k−j] on the LTR levels, with the
+  exogenous input u the *steady-state LTR demand* of the steering at the current speed
+  (:class:`LtrDemandModel`: single-track steady state a_y = v²·δ/(l + K·v²), saturated smoothly
+  at μ·g, turned into LTR with the formula above); the orders (n_a ≥ 1, n_b ≥ 0) are chosen
+  jointly by AIC. The steering-wheel angle leads the LTR through the tyre and roll dynamics,
+  which the fitted a_i, b_j capture; the fit's steady-state gain Σb/(1 − Σa) is held within
+  ``_ARX_GAIN_RANGE`` (the demand already is the physical steady state). Forecast: the steering
+  is held at its current value (a driver's next input is not known) and the speed extrapolated
+  with the measured longitudinal acceleration, so the demand falls as a coasting car slows down.
+
+A fit with a root at or beyond ``_MAX_ROOT`` is rejected in favour of holding the current value
+until the next refit. A warning fires at every epoch where a prediction (or the LTR itself)
+reaches ``threshold`` (0.9) in magnitude. Predictions are clipped to [−1, 1], the physical range.
+
+How good can any prediction be? The next steering input of a driver is unknown, so a causal
+predictor's error has a floor: on the NHTSA fishhook the counter-steer (0.45 s after the steer
+starts) and the return to centre come after most predictions are issued.
+``benchmarks/study_rollover_prediction.py`` measures that floor with the simulator itself (the
+true vehicle with the steering held from each issue time) next to the AR and ARX figures.
 """
 
 from __future__ import annotations
@@ -41,8 +69,11 @@ from vsccore.angles import FloatArray
 from vsccore.errors import AnalysisError
 
 __all__ = [
+    "LtrDemandModel",
+    "LtrExogenous",
     "LtrPrediction",
     "PredictionError",
+    "RollModel",
     "horizontal_ay",
     "ltr_from_lateral",
     "predict_ltr",
@@ -52,6 +83,13 @@ __all__ = [
 G = 9.80665
 _MAX_ROOT = 0.98
 """Largest modulus of the increments' AR roots accepted (closer to 1 is a near-integrated, runaway forecast)."""
+_MAX_ROOT_ARX = 0.995
+"""Largest modulus of the ARX's AR roots accepted (levels: the LTR must settle on the input, not drift)."""
+_ARX_GAIN_RANGE = (0.7, 1.3)
+"""Steady-state gain demand → LTR allowed to a fit (the demand model is within a few per cent of the true
+steady state in the linear range, ≈ 7 % high at the tyre limit); fits outside are scaled to the bound.
+Without it, fits on a window caught mid-transient claimed gains of 1.4–5 and predicted |LTR| ≥ 0.9
+where the true peak was 0.76 (sine with dwell, J-turn: false rollover warnings)."""
 
 
 def horizontal_ay(ay_body_mps2: npt.ArrayLike, roll_rad: npt.ArrayLike) -> FloatArray:
@@ -90,6 +128,134 @@ def ltr_from_lateral(
 
 
 @dataclass(frozen=True, slots=True)
+class RollModel:
+    """Roll of the body about the roll axis (module docstring), from the vehicle profile (SI)."""
+
+    mass_kg: float
+    cg_height_m: float
+    roll_axis_height_m: float
+    roll_stiffness_nm_per_rad: float
+    """Front + rear."""
+    roll_damping_nms_per_rad: float
+    roll_inertia_kgm2: float
+    """Of the body about the roll axis."""
+
+    def __post_init__(self) -> None:
+        m_h = self.mass_kg * G * (self.cg_height_m - self.roll_axis_height_m)
+        if not (self.mass_kg > 0 and self.roll_inertia_kgm2 > 0 and self.roll_damping_nms_per_rad >= 0):
+            raise AnalysisError("roll model: mass and roll inertia must be positive, damping not negative")
+        if not self.roll_stiffness_nm_per_rad > m_h:
+            raise AnalysisError(
+                f"roll model: roll stiffness {self.roll_stiffness_nm_per_rad:.0f} N·m/rad must exceed "
+                f"m·g·(h − h_r) = {m_h:.0f} N·m/rad (the body would be unstable in roll)"
+            )
+
+    @property
+    def roll_gain_rad_per_mps2(self) -> float:
+        """Static k_φ = m(h − h_r) / (K_φ − m g (h − h_r)): roll per unit (horizontal) lateral acceleration."""
+        mh = self.mass_kg * (self.cg_height_m - self.roll_axis_height_m)
+        return mh / (self.roll_stiffness_nm_per_rad - mh * G)
+
+    def roll_from_body_ay(self, t_s: npt.ArrayLike, ay_body_mps2: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Roll angle (rad) and roll acceleration (rad/s²) driven by a body-fixed lateral accelerometer.
+
+        ``t_s`` must be uniform (resample first); the filter starts in the static state of the
+        first sample. NaN samples are held at the previous value.
+
+        Raises:
+            AnalysisError: non-uniform or too short time base.
+        """
+        from scipy import signal
+
+        t = check_time("t_s", t_s, min_samples=2)
+        a = as_1d("ay_body_mps2", ay_body_mps2, t.size)
+        dt = float(np.median(np.diff(t)))
+        if np.max(np.abs(np.diff(t) - dt)) > 0.01 * dt:
+            raise AnalysisError("roll_from_body_ay: the time base must be uniform (resample first)")
+        ok = np.isfinite(a)
+        if not np.any(ok):
+            raise AnalysisError("roll_from_body_ay: no finite lateral acceleration")
+        idx = np.where(ok, np.arange(a.size), 0)
+        np.maximum.accumulate(idx, out=idx)
+        a = a[idx]
+        if not ok[0]:
+            a[: int(np.argmax(ok))] = a[int(np.argmax(ok))]
+        mh = self.mass_kg * (self.cg_height_m - self.roll_axis_height_m)
+        num, den, _ = signal.cont2discrete(
+            ([mh], [self.roll_inertia_kgm2, self.roll_damping_nms_per_rad, self.roll_stiffness_nm_per_rad]),
+            dt, method="bilinear",
+        )
+        b = np.asarray(num, dtype=float).ravel()
+        d = np.asarray(den, dtype=float).ravel()
+        zi = signal.lfilter_zi(b, d) * a[0]
+        phi = np.asarray(signal.lfilter(b, d, a, zi=zi)[0], dtype=float)
+        # the roll equation itself gives the roll acceleration from φ, φ̇ and a_m
+        phid = np.gradient(phi, dt)
+        phidd = (mh * a - self.roll_damping_nms_per_rad * phid - self.roll_stiffness_nm_per_rad * phi) / (
+            self.roll_inertia_kgm2
+        )
+        return phi, np.asarray(phidd, dtype=float)
+
+
+@dataclass(frozen=True, slots=True)
+class LtrDemandModel:
+    """Steady-state LTR that a steering-wheel angle asks for at a speed (the ARX model's input).
+
+    a_y = v²·δ / (l + K·v²) (single-track steady state, K the understeer gradient), saturated
+    smoothly at μ·g (μ·g·tanh(a_y / μ·g): a real axle's force saturates gradually, and a hard clip
+    would make the demand far too sensitive to speed at the limit); δ = SWA / ratio(SWA) with the
+    steering ratio interpolated over ``ratio_swa_deg``; then LTR = (2/t)·(h·a_y/g + (h − h_r)·sin(k_φ·a_y)).
+    """
+
+    wheelbase_m: float
+    understeer_gradient_rad_per_mps2: float
+    peak_mu: float
+    cg_height_m: float
+    roll_axis_height_m: float
+    track_m: float
+    roll_gain_rad_per_mps2: float
+    ratio_swa_deg: tuple[float, ...] = (0.0,)
+    ratio: tuple[float, ...] = (16.0,)
+
+    def __post_init__(self) -> None:
+        if len(self.ratio_swa_deg) != len(self.ratio) or not self.ratio or min(self.ratio) <= 0:
+            raise AnalysisError("LTR demand model: steering ratio breakpoints and positive ratios must pair up")
+        if not (self.wheelbase_m > 0 and self.track_m > 0 and self.peak_mu > 0):
+            raise AnalysisError("LTR demand model: wheelbase, track and μ must be positive")
+
+    def road_wheel_angle(self, swa_rad: npt.ArrayLike) -> FloatArray:
+        """δ = SWA / ratio(SWA) (rad)."""
+        swa = np.asarray(swa_rad, dtype=float)
+        r = np.interp(np.degrees(swa), self.ratio_swa_deg, self.ratio)
+        return np.asarray(swa / r, dtype=float)
+
+    def lateral_acceleration(self, swa_rad: npt.ArrayLike, speed_mps: npt.ArrayLike) -> FloatArray:
+        """Steady-state a_y (m/s²) for the SWA at the speed, saturated smoothly at μ·g."""
+        v = np.asarray(speed_mps, dtype=float)
+        ay = v * v * self.road_wheel_angle(swa_rad) / (self.wheelbase_m + self.understeer_gradient_rad_per_mps2 * v * v)
+        lim = self.peak_mu * G
+        return np.asarray(lim * np.tanh(ay / lim), dtype=float)
+
+    def demand(self, swa_rad: npt.ArrayLike, speed_mps: npt.ArrayLike) -> FloatArray:
+        """Steady-state LTR for the SWA at the speed."""
+        ay = self.lateral_acceleration(swa_rad, speed_mps)
+        phi = self.roll_gain_rad_per_mps2 * ay
+        return ltr_from_lateral(ay, phi, cg_height_m=self.cg_height_m, roll_axis_height_m=self.roll_axis_height_m,
+                                track_m=self.track_m)
+
+
+@dataclass(frozen=True, slots=True)
+class LtrExogenous:
+    """Inputs of the ARX predictor, on the LTR's time base."""
+
+    swa_rad: FloatArray
+    speed_mps: FloatArray
+    ax_mps2: FloatArray | None
+    """Longitudinal acceleration for the speed extrapolation (None: the derivative of the speed)."""
+    model: LtrDemandModel
+
+
+@dataclass(frozen=True, slots=True)
 class LtrPrediction:
     """Predictions issued at each epoch ``t`` for ``t + horizon``."""
 
@@ -105,6 +271,10 @@ class LtrPrediction:
     warning: npt.NDArray[np.bool_]
     """True where |LTR| or any |prediction| reaches the threshold."""
     threshold: float
+    model: str = "ar"
+    """``ar`` (LTR alone) or ``arx`` (with the steering demand as exogenous input)."""
+    input_order: npt.NDArray[np.int64] | None = None
+    """ARX: number of input terms n_b in use at each epoch."""
 
     @property
     def warning_intervals(self) -> list[tuple[float, float]]:
@@ -202,6 +372,74 @@ def _fit(window: FloatArray, max_order: int, engine: str = "numpy") -> tuple[Flo
     return coef, order
 
 
+def _fit_arx(y: FloatArray, u: FloatArray, max_na: int, max_nb: int) -> tuple[FloatArray, FloatArray]:
+    """ARX y[k] = Σ_{i=1..n_a} a_i y[k−i] + Σ_{j=0..n_b−1} b_j u[k−j] by least squares, orders by AIC.
+
+    Every order pair (1 ≤ n_a ≤ max_na, 0 ≤ n_b ≤ max_nb) is fitted on the same samples (the first
+    max(n_a, n_b − 1) held back); AIC = N·ln(SSR/N) + 2·(n_a + n_b) (the Gaussian AIC up to a
+    constant), the smallest wins. The fits are solved from one Gram matrix (sub-blocks per order
+    pair), so a refit costs a few microseconds. Returns (a, b); empty ``a`` when no usable fit
+    exists (too short or flat window, or a root ≥ ``_MAX_ROOT_ARX``).
+    """
+    m = max(max_na, max_nb - 1, 1)
+    n = y.size
+    if n - m < 2 * (max_na + max_nb) or float(np.ptp(y)) < 1e-9:
+        return np.zeros(0), np.zeros(0)
+    target = y[m:]
+    cols = [y[m - i : n - i] for i in range(1, max_na + 1)] + [u[m - j : n - j] for j in range(max_nb)]
+    x = np.column_stack(cols)
+    gram = x.T @ x
+    xty = x.T @ target
+    yty = float(np.dot(target, target))
+    nobs = target.size
+    best_aic, best = math.inf, (np.zeros(0), np.zeros(0))
+    for na in range(1, max_na + 1):
+        for nb in range(max_nb + 1):
+            sel = list(range(na)) + list(range(max_na, max_na + nb))
+            g = gram[np.ix_(sel, sel)]
+            c = xty[sel]
+            theta = np.linalg.lstsq(g, c, rcond=None)[0]
+            ssr = yty - 2.0 * float(theta @ c) + float(theta @ g @ theta)
+            aic = nobs * math.log(max(ssr, 1e-300) / nobs) + 2.0 * (na + nb)
+            if aic < best_aic - 1e-9:
+                best_aic, best = aic, (np.asarray(theta[:na], dtype=float), np.asarray(theta[na:], dtype=float))
+    a, b = best
+    if a.size and np.any(np.abs(np.roots(np.concatenate(([1.0], -a)))) >= _MAX_ROOT_ARX):
+        return np.zeros(0), np.zeros(0)
+    if b.size:
+        # steady-state gain from the demand to the LTR: the demand already is the physical steady state,
+        # so a fit on a window caught mid-transient that claims much more (or less) is not believed
+        gain = float(np.sum(b)) / (1.0 - float(np.sum(a)))
+        lo, hi = _ARX_GAIN_RANGE
+        if not (math.isfinite(gain) and gain > 0.0):
+            return np.zeros(0), np.zeros(0)
+        if not lo <= gain <= hi:
+            b = b * (min(max(gain, lo), hi) / gain)
+    return a, b
+
+
+def _forecast_arx(a: FloatArray, b: FloatArray, y: FloatArray, u: FloatArray, u_future: FloatArray) -> FloatArray:
+    """Iterate the ARX forward over ``u_future`` (the input at k+1, k+2, …); hold y without a model."""
+    steps = u_future.size
+    if a.size == 0:
+        return np.full(steps, float(y[-1]))
+    na, nb = a.size, b.size
+    yh = list(y[-na:])
+    uh = list(u[-nb:]) if nb else []
+    out = np.empty(steps)
+    for s in range(steps):
+        if nb:
+            uh.append(float(u_future[s]))
+            uh.pop(0)
+        val = float(np.dot(a, yh[::-1]))
+        if nb:
+            val += float(np.dot(b, uh[::-1]))
+        out[s] = val
+        yh.append(val)
+        yh.pop(0)
+    return out
+
+
 def predict_ltr(
     t_s: npt.ArrayLike,
     ltr: npt.ArrayLike,
@@ -211,19 +449,26 @@ def predict_ltr(
     window_s: float = 3.0,
     min_window_s: float = 1.0,
     max_order: int = 8,
-    refit_every_s: float = 0.25,
+    refit_every_s: float | None = None,
     threshold: float = 0.9,
     engine: str = "numpy",
+    exogenous: LtrExogenous | None = None,
+    max_input_order: int = 3,
 ) -> LtrPrediction:
-    """Predict the LTR ``horizons_s`` ahead with a sliding-window AR model (module docstring).
+    """Predict the LTR ``horizons_s`` ahead with a sliding-window AR, or ARX with ``exogenous`` (module docstring).
 
-    ``engine``: "numpy" (default, fast) or "statsmodels" (``ar_select_order``; the same result).
+    ``engine``: "numpy" (default, fast) or "statsmodels" (``ar_select_order``; the same result) for
+    the AR model. With ``exogenous`` (arrays on ``t_s``) the ARX model is used: AR orders up to
+    ``min(max_order, 3)``, input orders up to ``max_input_order``. ``refit_every_s``: default
+    0.25 s for AR, every epoch for ARX (its fit is cheap and the input changes fast).
 
     Raises:
         AnalysisError: malformed arrays, a record shorter than the window, or bad settings.
     """
     t_in = check_time("t_s", t_s, min_samples=2)
     x_in = as_1d("ltr", ltr, t_in.size)
+    if refit_every_s is None:
+        refit_every_s = 0.25 if exogenous is None else 1.0 / rate_hz
     if not (rate_hz > 0.0 and window_s > 0.0 and refit_every_s > 0.0 and max_order >= 1):
         raise AnalysisError("predict_ltr: rate_hz, window_s, refit_every_s must be positive and max_order ≥ 1")
     if engine not in ("numpy", "statsmodels"):
@@ -247,18 +492,75 @@ def predict_ltr(
     refit = max(1, int(round(refit_every_s * rate_hz)))
     pred = np.full((t.size, len(hs)), np.nan)
     order = np.zeros(t.size, dtype=np.int64)
-    coef, p = np.zeros(0), 0
     k0 = min(w, max(2, int(round(min_window_s * rate_hz)))) - 1
-    for k in range(k0, t.size):
-        window = x[max(0, k - w + 1) : k + 1]  # grows to the full window at the start of the record
-        if (k - k0) % refit == 0:
-            coef, p = _fit(window, max_order, engine)
-        path = _forecast(coef, window, n_ahead)
-        pred[k] = np.clip(path[[s - 1 for s in steps]], -1.0, 1.0)
-        order[k] = p
+    if exogenous is not None:
+        in_order = _predict_arx(t_in, t, x, exogenous, w, k0, refit, steps, min(max_order, 3), max_input_order,
+                                pred, order)
+    else:
+        in_order = None
+        coef, p = np.zeros(0), 0
+        for k in range(k0, t.size):
+            window = x[max(0, k - w + 1) : k + 1]  # grows to the full window at the start of the record
+            if (k - k0) % refit == 0:
+                coef, p = _fit(window, max_order, engine)
+            path = _forecast(coef, window, n_ahead)
+            pred[k] = np.clip(path[[s - 1 for s in steps]], -1.0, 1.0)
+            order[k] = p
     with np.errstate(invalid="ignore"):
         warn = (np.abs(x) >= threshold) | np.any(np.abs(pred) >= threshold, axis=1)
-    return LtrPrediction(t=t, ltr=x, horizons_s=hs, predicted=pred, order=order, warning=warn, threshold=threshold)
+    return LtrPrediction(t=t, ltr=x, horizons_s=hs, predicted=pred, order=order, warning=warn, threshold=threshold,
+                         model="ar" if exogenous is None else "arx", input_order=in_order)
+
+
+def _predict_arx(
+    t_in: FloatArray,
+    t: FloatArray,
+    x: FloatArray,
+    ex: LtrExogenous,
+    w: int,
+    k0: int,
+    refit: int,
+    steps: list[int],
+    max_na: int,
+    max_nb: int,
+    pred: FloatArray,
+    order: npt.NDArray[np.int64],
+) -> npt.NDArray[np.int64]:
+    """The ARX loop of :func:`predict_ltr` (fills ``pred`` and ``order``; returns the input orders)."""
+    n_in = t_in.size
+
+    def on_grid(name: str, v: npt.ArrayLike) -> FloatArray:
+        a = as_1d(name, v, n_in)
+        ok = np.isfinite(a)
+        if np.count_nonzero(ok) < 2:
+            raise AnalysisError(f"predict_ltr: exogenous {name} has fewer than two finite samples")
+        return np.asarray(np.interp(t, t_in[ok], a[ok]), dtype=float)
+
+    swa = on_grid("swa_rad", ex.swa_rad)
+    v = on_grid("speed_mps", ex.speed_mps)
+    dt = float(t[1] - t[0]) if t.size > 1 else 1.0
+    if ex.ax_mps2 is not None:
+        ax = on_grid("ax_mps2", ex.ax_mps2)
+    else:
+        ax = np.gradient(v, dt) if v.size > 1 else np.zeros_like(v)
+    u = ex.model.demand(swa, v)
+    n_ahead = max(steps)
+    ahead = dt * np.arange(1, n_ahead + 1)
+    in_order = np.zeros(t.size, dtype=np.int64)
+    a, b = np.zeros(0), np.zeros(0)
+    pick = [s - 1 for s in steps]
+    for k in range(k0, t.size):
+        lo = max(0, k - w + 1)
+        if (k - k0) % refit == 0:
+            a, b = _fit_arx(x[lo : k + 1], u[lo : k + 1], max_na, max_nb)
+        # steering held, speed extrapolated with the current longitudinal acceleration (never below 0)
+        v_future = np.maximum(v[k] + ax[k] * ahead, 0.0)
+        u_future = ex.model.demand(np.full(n_ahead, swa[k]), v_future)
+        path = _forecast_arx(a, b, x[lo : k + 1], u[lo : k + 1], u_future)
+        pred[k] = np.clip(path[pick], -1.0, 1.0)
+        order[k] = a.size
+        in_order[k] = b.size
+    return in_order
 
 
 @dataclass(frozen=True, slots=True)

@@ -51,6 +51,7 @@ def _root(
 def _register() -> None:
     """Attach the command groups (each lives in its own module)."""
     from rig.cli import (
+        analysis_cmd,
         calibrate_cmd,
         can_cmd,
         config_cmd,
@@ -74,6 +75,7 @@ def _register() -> None:
     sim_cmd.app.command("record")(record_cmd.sim_record)
     info_cmd.register(app)  # rig info, rig export
     calibrate_cmd.register(app)  # rig calibrate-*, steering-ratio
+    analysis_cmd.register(app)  # rig validate, rig rollover, rig steering
 
 
 _register()
@@ -83,7 +85,8 @@ def main(argv: list[str] | None = None) -> None:
     """Run the CLI; project errors become one line on stderr and exit status 2."""
     debug = "--debug" in (argv if argv is not None else sys.argv[1:])
     try:
-        app(args=argv, standalone_mode=False)
+        # without standalone mode click returns a command's exit code instead of exiting with it
+        code = app(args=argv, standalone_mode=False)
     except RigError as exc:
         if debug:
             raise
@@ -104,3 +107,5 @@ def main(argv: list[str] | None = None) -> None:
             exc.show()
             sys.exit(exc.exit_code)
         raise
+    if isinstance(code, int) and code != 0:
+        sys.exit(code)

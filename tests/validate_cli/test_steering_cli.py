@@ -1,0 +1,87 @@
+"""``rig steering error-model``: the γ(v) table against the closed form, computed here from first principles."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+from typer.testing import CliRunner
+
+from rig.cli.main import app
+
+runner = CliRunner()
+G = 9.80665
+
+
+def closed_form(mass: float, l_m: float, c_front: float, c_rear: float, b_over_l: float, deg_per_g: float,
+                v_mps: float) -> tuple[float, float | None]:
+    """γ(v) and the sign-change speed: single-track understeer gradient with two tyres per axle."""
+    k_phi = math.radians(deg_per_g) / G  # rad per m/s²
+    m_front = mass * b_over_l  # the front axle carries b/l of the weight
+    m_rear = mass * (1.0 - b_over_l)
+    k_us = m_front / (2.0 * c_front) - m_rear / (2.0 * c_rear)  # rad per m/s²
+    gamma = 1.0 - l_m * (1.0 + G * k_phi) / (l_m + k_us * v_mps**2)
+    v0 = math.sqrt(l_m * G * k_phi / k_us) if k_us > 0 and k_phi > 0 else None
+    return gamma, v0
+
+
+ARGS = ["steering", "error-model", "--mass", "1550", "--wheelbase", "2.8", "--cornering-stiffness", "60000",
+        "--front-axle-load-share", "0.6", "--roll-gain-deg-per-g", "4.5"]
+
+
+def test_json_matches_the_closed_form(tmp_path) -> None:
+    png = tmp_path / "gamma.png"
+    res = runner.invoke(app, [*ARGS, "--speeds", "15,36,50,80,120.5", "--json", "--plot", str(png)])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)
+    speeds = [15.0, 36.0, 50.0, 80.0, 120.5]
+    assert [e["speed_kmh"] for e in doc["errors"]] == pytest.approx(speeds)
+    for e, v in zip(doc["errors"], speeds, strict=True):
+        gamma, _ = closed_form(1550, 2.8, 60000, 60000, 0.6, 4.5, v / 3.6)
+        assert e["gamma_percent"] == pytest.approx(100 * gamma, abs=1e-9)
+    _, v0 = closed_form(1550, 2.8, 60000, 60000, 0.6, 4.5, 0.0)
+    assert v0 is not None
+    assert doc["sign_change_speed_kmh"] == pytest.approx(3.6 * v0, rel=1e-12)
+    # at the sign-change speed the closed form is zero, on either side it has opposite signs
+    assert closed_form(1550, 2.8, 60000, 60000, 0.6, 4.5, v0)[0] == pytest.approx(0.0, abs=1e-12)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert doc["plot"] == str(png)
+
+
+def test_text_table_and_separate_rear_stiffness() -> None:
+    res = runner.invoke(app, [*ARGS, "--cornering-stiffness-rear", "75000", "--speeds", "30,100"])
+    assert res.exit_code == 0, res.output
+    lines = res.output.splitlines()
+    gamma_100, v0 = closed_form(1550, 2.8, 60000, 75000, 0.6, 4.5, 100 / 3.6)
+    assert v0 is not None
+    assert f"{3.6 * v0:.1f} km/h" in lines[1]
+    row = next(x for x in lines if x.strip().startswith("100.0"))
+    assert float(row.split()[1]) == pytest.approx(100 * gamma_100, abs=0.006)  # printed to 0.01 %
+
+
+def test_oversteer_has_no_sign_change() -> None:
+    # rear-heavy with a soft rear axle: K < 0, so γ stays negative and never crosses zero
+    res = runner.invoke(app, ["steering", "error-model", "--mass", "1400", "--wheelbase", "2.5",
+                              "--cornering-stiffness", "60000", "--cornering-stiffness-rear", "40000",
+                              "--front-axle-load-share", "0.4", "--roll-gain-deg-per-g", "5", "--json",
+                              "--speeds", "20,60"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)
+    assert doc["sign_change_speed_kmh"] is None
+    for e in doc["errors"]:
+        gamma, v0 = closed_form(1400, 2.5, 60000, 40000, 0.4, 5.0, e["speed_kmh"] / 3.6)
+        assert v0 is None and e["gamma_percent"] == pytest.approx(100 * gamma, abs=1e-9)
+
+
+def test_bad_parameters_are_one_line_errors(capsys) -> None:
+    from rig.cli.main import main
+
+    with pytest.raises(SystemExit) as exc:
+        main([*ARGS[:-2], "--roll-gain-deg-per-g", "4", "--front-axle-load-share", "1.2"])
+    assert exc.value.code == 2
+    assert "front_axle_load_share" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main([*ARGS, "--speeds", "20,fast"])
+    assert exc.value.code == 2
+    assert "--speeds" in capsys.readouterr().err
