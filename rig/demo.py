@@ -116,7 +116,10 @@ def run_demo(out_dir: Path, *, fast: bool = False, config: Path | None = None) -
                        config=config or demo_config_path())
 
     _stage(result, "record", record_stage)
-    _stage(result, "calibrate", lambda: _calibrate(out_dir / "session" / "demo", out_dir))
+    session = out_dir / "session" / "demo"
+    _stage(result, "calibrate", lambda: _calibrate(session, out_dir))
+    _stage(result, "validate", lambda: _validate(session, out_dir / "report"))
+    _stage(result, "rollover", lambda: _rollover(session, out_dir))
     return result
 
 
@@ -219,3 +222,34 @@ def _calibrate(session: Path, out_dir: Path) -> tuple[str, tuple[Path, ...]]:
     if cal.truth_offset_deg is not None:
         head += f", simulator truth {cal.truth_offset_deg:+.3f}° (error {cal.offset_deg - cal.truth_offset_deg:+.3f}°)"
     return head + "\n" + "\n".join("    " + line for line in text.splitlines()), tuple(files)
+
+
+def _validate(session: Path, report_dir: Path) -> tuple[str, tuple[Path, ...]]:
+    """Reference sideslip (calibration from the previous stage applied), VSC estimate scored, HTML report."""
+    from rig.report import write_validation_report
+    from rig.validate import validate_session, validation_lines
+
+    sv = validate_session(session)
+    files = write_validation_report(sv, report_dir)
+    verdict = "PASS" if sv.passed else "FAIL (the simulated VSC estimator is imperfect on purpose)"
+    lines = validation_lines(sv)
+    return f"VSC sideslip estimate: {verdict}\n" + "\n".join("    " + line for line in lines), (
+        files.html,
+        files.metrics_json,
+        files.metrics_csv,
+    )
+
+
+def _rollover(session: Path, out_dir: Path) -> tuple[str, tuple[Path, ...]]:
+    """LTR from lateral acceleration and roll, its 1–3 s prediction and warnings, against the true LTR."""
+    from rig.report import plot_rollover
+    from rig.validate import rollover_session
+
+    rep = rollover_session(session)
+    png = plot_rollover(rep, out_dir / "rollover.png")
+    text = f"LTR ({rep.model} prediction): peak |LTR| {float(np.nanmax(np.abs(rep.ltr))):.2f}"
+    if rep.ltr_error_rms is not None and rep.ltr_error_max is not None:
+        text += f", error vs the true LTR RMS {rep.ltr_error_rms:.3f} (max {rep.ltr_error_max:.3f})"
+    first = rep.prediction.first_warning_s()
+    text += "; no rollover warning" if first is None else f"; first warning (prediction ≥ 0.9) at {first:.1f} s"
+    return text, (png,)

@@ -677,3 +677,35 @@ def steering_session(
                                swa_rad=swa, steering_ratio=_steering_ratio_fn(inp.profile),
                                min_speed_mps=min_speed_kmh / 3.6)
     return SteeringReport(inp.name, rec)
+
+
+def validation_lines(sv: SessionValidation) -> list[str]:
+    """The summary that ``rig validate`` prints: overall metrics, per-manoeuvre verdicts, truth scores."""
+    res = sv.result
+    o = res.overall.metrics
+    lines = [
+        (f"session {sv.session_name}: {sv.t_s[-1] - sv.t_s[0]:.1f} s, reference {res.reference_method}, "
+        f"valid {100 * res.reference_valid_fraction:.1f} % of {sv.t_s.size} epochs"),
+        f"estimate: {res.estimate_source}",
+    ]
+    if o is not None:
+        lag = "–" if math.isnan(o.lag_s) else f"{o.lag_s:+.3f} s"
+        lines.append(f"overall: RMSE {math.degrees(o.rmse_rad):.3f}°  bias {math.degrees(o.bias_rad):+.3f}°  "
+                     f"max {math.degrees(o.max_abs_rad):.3f}°  P95 {math.degrees(o.p95_abs_rad):.3f}°  lag {lag}  "
+                     f"(n = {o.n_compared})")
+    lines.append(f"{'manoeuvre':<24} {'start':>7} {'stop':>7} {'RMSE°':>7} {'bias°':>7} {'max°':>7}  verdict")
+    for row in res.table_rows():
+        if row["n"] == 0:
+            continue
+        verdict = "PASS" if row["passed"] else "FAIL"
+        lines.append(f"{row['kind']!s:<24} {row['t_start_s']:7.1f} {row['t_stop_s']:7.1f} {row['rmse_deg']:7.3f} "
+                     f"{row['bias_deg']:+7.3f} {row['max_abs_deg']:7.3f}  {verdict}")
+    for s in res.truth:
+        lines.append(f"truth: {s.name} RMS {math.degrees(s.metrics.rmse_rad):.3f}° bias "
+                     f"{math.degrees(s.metrics.bias_rad):+.3f}°, within k·σ {100 * s.coverage:.1f} %")
+    if sv.cross_check is not None:
+        flag = "FLAGGED" if sv.cross_check_flagged else "ok"
+        lines.append(f"GNSS/optical cross-check {flag}: RMS difference "
+                     f"{math.degrees(sv.cross_check.rms_diff_rad):.3f}°, "
+                     f"{100 * sv.cross_check.fraction_disagree:.1f} % beyond k·σ")
+    return lines

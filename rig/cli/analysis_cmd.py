@@ -172,7 +172,7 @@ def validate(
     Exit status: 0 PASS, 1 FAIL (the configured [validation] tolerances), 2 error.
     """
     from rig.report import write_metrics_csv, write_validation_report
-    from rig.validate import validate_session
+    from rig.validate import validate_session, validation_lines
 
     with _progress(not no_progress, 7) as step:
         sv = validate_session(session, estimator=estimator, method=method, progress=step)
@@ -181,28 +181,8 @@ def validate(
             files = write_validation_report(sv, report)
     res = sv.result
     o = res.overall.metrics
-    typer.echo(f"session {sv.session_name}: {sv.t_s[-1] - sv.t_s[0]:.1f} s, reference {res.reference_method}, "
-               f"valid {100 * res.reference_valid_fraction:.1f} % of {sv.t_s.size} epochs")
-    typer.echo(f"estimate: {res.estimate_source}")
-    if o is not None:
-        lag = "–" if math.isnan(o.lag_s) else f"{o.lag_s:+.3f} s"
-        typer.echo(f"overall: RMSE {math.degrees(o.rmse_rad):.3f}°  bias {math.degrees(o.bias_rad):+.3f}°  "
-                   f"max {math.degrees(o.max_abs_rad):.3f}°  P95 {math.degrees(o.p95_abs_rad):.3f}°  lag {lag}  "
-                   f"(n = {o.n_compared})")
-    typer.echo(f"{'manoeuvre':<24} {'start':>7} {'stop':>7} {'RMSE°':>7} {'bias°':>7} {'max°':>7}  verdict")
-    for row in res.table_rows():
-        if row["n"] == 0:
-            continue
-        verdict = "PASS" if row["passed"] else "FAIL"
-        typer.echo(f"{row['kind']!s:<24} {row['t_start_s']:7.1f} {row['t_stop_s']:7.1f} {row['rmse_deg']:7.3f} "
-                   f"{row['bias_deg']:+7.3f} {row['max_abs_deg']:7.3f}  {verdict}")
-    for s in res.truth:
-        typer.echo(f"truth: {s.name} RMS {math.degrees(s.metrics.rmse_rad):.3f}° bias "
-                   f"{math.degrees(s.metrics.bias_rad):+.3f}°, within k·σ {100 * s.coverage:.1f} %")
-    if sv.cross_check is not None:
-        flag = "FLAGGED" if sv.cross_check_flagged else "ok"
-        typer.echo(f"GNSS/optical cross-check {flag}: RMS difference {math.degrees(sv.cross_check.rms_diff_rad):.3f}°, "
-                   f"{100 * sv.cross_check.fraction_disagree:.1f} % beyond k·σ")
+    for line in validation_lines(sv):
+        typer.echo(line)
     for w in sv.warnings:
         typer.echo(f"warning: {w}", err=True)
     if json_file is not None:
@@ -214,9 +194,7 @@ def validate(
                    f"{files.metrics_csv.name})")
     typer.echo("PASS" if sv.passed else "FAIL: " + "; ".join(o.failures if o is not None else ["no metrics"]))
     if not sv.passed:
-        # SystemExit, not typer.Exit: rig.cli.main runs click with standalone_mode=False, which turns
-        # typer.Exit into a return value that main() does not pass on as the exit status
-        raise SystemExit(1)
+        raise typer.Exit(1)
 
 
 def rollover(
