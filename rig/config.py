@@ -304,6 +304,11 @@ class ReceiverConfig(_Model):
     fix_position: tuple[float, float, float] | None = None
     extra_commands: tuple[str, ...] = ()
     command_timeout_s: Positive = 2.0
+    output_latency_s: NonNegative | None = None
+    """Fixed delay from a log's data time to its first byte on the port (a property of the receiver
+    and its firmware, which the time base cannot see and must be told). None: 0 for a real receiver,
+    ``simulation.gnss.output_latency_s`` for the simulated ones. The serial transmission time of each
+    log (its length at ``baud``) is removed on top of it."""
 
     @model_validator(mode="after")
     def _roles(self) -> Self:

@@ -43,6 +43,10 @@ where a value is unknown:
   ``latency_p50_ns``, ``latency_p95_ns``, ``rms_ns``, ``max_abs_ns``, ``leap_seconds``, ``time_ns``,
   ``records``]};
 - ``calibration``: the calibration metadata in force, flat ``{key: value text}`` as recorded;
+- ``calibration_file``: the calibration results next to the session (``<base>.calibration.json``,
+  written by ``rig calibrate-baseline`` and the other ``rig calibrate-*`` commands), or ``null`` when
+  there is none: {``path``, ``format``, ``results`` (``{key: entry}`` as written, e.g. ``mount_offset``
+  with ``offset_deg`` and ``u95_deg``), ``problem`` (why an existing file could not be read, else ``null``)};
 - ``events``: {``total``, ``by_kind``, ``by_severity``, ``problems`` (warnings and errors), ``marks``:
   [{``time_ns``, ``time_utc``, ``kind``, ``severity``, ``source``, ``text``}]};
 - ``attachments``: [{``name``, ``media_type``, ``bytes``}];
@@ -78,6 +82,7 @@ __all__ = [
     "INFO_JSON_KEYS",
     "INFO_VERSION",
     "AttachmentInfo",
+    "CalibrationFileInfo",
     "ClockInfo",
     "DeviceGap",
     "DeviceGapKind",
@@ -116,6 +121,7 @@ INFO_JSON_KEYS = (
     "device_gaps",
     "timebase",
     "calibration",
+    "calibration_file",
     "events",
     "attachments",
     "warnings",
@@ -317,6 +323,18 @@ class AttachmentInfo:
 
 
 @dataclass(frozen=True, slots=True)
+class CalibrationFileInfo:
+    """The session's calibration results file (``<base>.calibration.json``, see :mod:`rig.sessiondata`)."""
+
+    path: Path
+    results: Mapping[str, Any]
+    """``results`` of the file: one entry per calibration (``mount_offset``, ``optical_zero``, …) as written."""
+    format: str | None = None
+    problem: str | None = None
+    """Why the file could not be read (then ``results`` is empty)."""
+
+
+@dataclass(frozen=True, slots=True)
 class SessionInfo:
     """Everything ``rig info`` reports about one session."""
 
@@ -336,6 +354,7 @@ class SessionInfo:
     events: EventSummary
     attachments: tuple[AttachmentInfo, ...]
     warnings: tuple[str, ...]
+    calibration_file: CalibrationFileInfo | None = None
 
     @property
     def duration_s(self) -> float | None:
@@ -641,6 +660,9 @@ def read_session_info(
                 seen.add(a.name)
                 attachments.append(a)
     base = session_base(files[0]) if part_index(files[0]) is not None else files[0]
+    cal_file = _calibration_file(files[0])
+    if cal_file is not None and cal_file.problem is not None:
+        warnings.append(cal_file.problem)
     return SessionInfo(
         path=base,
         name=recorder.get("session") or base.name,
@@ -658,7 +680,25 @@ def read_session_info(
         events=_event_summary(events),
         attachments=tuple(attachments),
         warnings=tuple(warnings),
+        calibration_file=cal_file,
     )
+
+
+def _calibration_file(part: Path) -> CalibrationFileInfo | None:
+    """The calibration results file of the session that ``part`` belongs to (None when there is none)."""
+    from rig.sessiondata import calibration_file_path, read_calibration_file
+
+    path = calibration_file_path(part)
+    if not path.exists():
+        return None
+    try:
+        doc = read_calibration_file(part)
+    except SessionFileError as exc:
+        return CalibrationFileInfo(path, {}, None, str(exc))
+    results = doc.get("results")
+    fmt = doc.get("format")
+    return CalibrationFileInfo(path, dict(results) if isinstance(results, Mapping) else {},
+                               fmt if isinstance(fmt, str) else None)
 
 
 def _span(parts: Sequence[_PartRead], topics: Sequence[TopicInfo]) -> tuple[int | None, int | None]:
@@ -1032,6 +1072,12 @@ def info_to_json(info: SessionInfo) -> dict[str, Any]:
             ],
         },
         "calibration": dict(info.calibration),
+        "calibration_file": None if info.calibration_file is None else {
+            "path": str(info.calibration_file.path),
+            "format": info.calibration_file.format,
+            "results": _jsonable(info.calibration_file.results),
+            "problem": info.calibration_file.problem,
+        },
         "events": {
             "total": info.events.total,
             "by_kind": dict(info.events.by_kind),
@@ -1044,6 +1090,51 @@ def info_to_json(info: SessionInfo) -> dict[str, Any]:
     }
     assert tuple(doc) == INFO_JSON_KEYS
     return doc
+
+
+def _jsonable(v: Any) -> Any:
+    """A JSON-loaded value made strict-JSON safe (non-finite floats, which the file should not hold, to null)."""
+    if isinstance(v, float):
+        return v if np.isfinite(v) else None
+    if isinstance(v, Mapping):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_jsonable(x) for x in v]
+    return v
+
+
+def _value_text(v: Any) -> str | None:
+    """A short text for a scalar or a short list of scalars (None for anything bigger: see --json)."""
+    if isinstance(v, bool) or v is None:
+        return str(v).lower() if isinstance(v, bool) else "-"
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, int | str):
+        return str(v)
+    if isinstance(v, list | tuple) and len(v) <= 8 and all(isinstance(x, int | float | str) for x in v):
+        return "[" + ", ".join(_value_text(x) or "?" for x in v) + "]"
+    return None
+
+
+def _entry_lines(entry: Any, indent: str) -> list[str]:
+    """``k = v, …`` of an entry's scalar fields; nested tables of scalars (per sensor) one per line."""
+    if not isinstance(entry, Mapping):
+        text = _value_text(entry)
+        return [f"{indent}{text if text is not None else '(see --json)'}"]
+    flat: list[str] = []
+    nested: list[str] = []
+    skipped = 0
+    for k, v in entry.items():
+        text = _value_text(v)
+        if text is not None:
+            flat.append(f"{k} = {text}")
+        elif isinstance(v, Mapping) and all(_value_text(x) is not None for x in v.values()):
+            nested.append(f"{indent}  {k}: " + ", ".join(f"{kk} = {_value_text(x)}" for kk, x in v.items()))
+        else:
+            skipped += 1
+    more = [f"{skipped} more field{'s' if skipped != 1 else ''} (see --json)"] if skipped else []
+    head = [f"{indent}{', '.join(flat + more)}"] if flat or more else []
+    return head + nested
 
 
 def _size(n: int) -> str:
@@ -1175,6 +1266,21 @@ def format_info(info: SessionInfo, *, max_list: int = 20) -> str:
         out.extend(f"  {k.ljust(width)} = {v}" for k, v in sorted(info.calibration.items()))
     else:
         out.append("  (none recorded)")
+
+    cf = info.calibration_file
+    out.append("")
+    if cf is None:
+        out.append("calibration results")
+        out.append("  (no calibration file: rig calibrate-baseline writes <session>.calibration.json)")
+    else:
+        out.append(f"calibration results ({cf.path.name})")
+        if cf.problem is not None:
+            out.append(f"  ! {cf.problem}")
+        elif not cf.results:
+            out.append("  (the file holds no results)")
+        for key, entry in cf.results.items():
+            out.append(f"  {key}")
+            out.extend(_entry_lines(entry, "    "))
 
     out.append("")
     ev = info.events

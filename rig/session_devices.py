@@ -251,7 +251,8 @@ class GnssDevice(Device):
         """Set when this receiver's stream is the correction relay's source."""
         self.raw_only = {_log_base_name(lr.name) for lr in rc.logs if lr.raw_only}
         self.frame_id = f"antenna_{rc.antenna}" if rc.antenna is not None else rc.name
-        self.latency_ns = session.gnss_output_latency_ns
+        self.latency_ns = (round(rc.output_latency_s * NS_PER_S) if rc.output_latency_s is not None
+                           else session.gnss_output_latency_ns)
         self.ns_per_byte = 10 * NS_PER_S / rc.baud
         self.topics = {kind: fn(rc.name) for kind, fn in (
             ("raw", T.gnss_raw), ("bestpos", T.gnss_bestpos), ("fix", T.gnss_fix), ("markpos", T.gnss_markpos),

@@ -9,6 +9,16 @@
     tr = s.truth()                              # simulated sessions
 """
 
-from rig.dataset.session import CanFrames, DaqData, GnssData, Session, Table, Truth, align, load_session
+from rig.dataset.session import (
+    CanFrames,
+    DaqData,
+    DaqSegment,
+    GnssData,
+    Session,
+    Table,
+    Truth,
+    align,
+    load_session,
+)
 
-__all__ = ["CanFrames", "DaqData", "GnssData", "Session", "Table", "Truth", "align", "load_session"]
+__all__ = ["CanFrames", "DaqData", "DaqSegment", "GnssData", "Session", "Table", "Truth", "align", "load_session"]

@@ -8,12 +8,16 @@ complete chunk) and keeps each topic's payloads; the accessors decode on first u
   receiver-reported leap seconds;
 - :meth:`Session.can_frames` / :meth:`Session.can_roles` — every frame of a bus, and its rig roles
   through :class:`drivers.can.vector_decode.VectorRoleDecoder` (DBC and role map from the session's
-  attachments unless given); frame times mapped interface clock → host → GPS by
-  :class:`rig.timebase.Timebase` estimators fitted over the whole session;
+  attachments unless given); frame times mapped interface clock → host → GPS by lower-envelope
+  estimators (:class:`rig.timebase.ClockEstimator`) fitted over the whole session. Host → GPS comes
+  from the reference receiver's BESTPOS/BESTVEL/TIME logs less each log's known latency, as the live
+  time base takes it off: the receiver's output latency (``receivers[].output_latency_s``, or the
+  simulated receivers') and the log's serial transmission time at the recorded baud rate;
 - :meth:`Session.daq`, :meth:`Session.analog`, :meth:`Session.optical` — DAQ sample blocks joined
   into channels (volts), scaled analog channels and optical-sensor quantities; sample times from
-  the sync pulse (edges on a DAQ channel matched with MARKTIME) when asked, else from the blocks'
-  log times;
+  the sync pulse (edges on a DAQ channel matched with MARKTIME) when asked, fitted per unbroken run
+  of sample indices (an acquisition: indices restart after a DAQ reconnect) with a flagged
+  host-clock fallback for a run without sync edges, else from the blocks' log times;
 - :meth:`Session.truth` — the simulator's ground truth (simulated sessions) as a
   :class:`sim_devices.vehicle.truth.GroundTruth` with its times;
 - :attr:`Session.events`, :attr:`Session.config`, :attr:`Session.metadata`, attachments.
@@ -54,6 +58,7 @@ if TYPE_CHECKING:
 __all__ = [
     "CanFrames",
     "DaqData",
+    "DaqSegment",
     "GnssData",
     "Session",
     "Table",
@@ -161,6 +166,25 @@ class CanFrames:
 
 
 @dataclass(frozen=True, slots=True)
+class DaqSegment:
+    """An unbroken run of DAQ sample indices (an acquisition, or its part between lost samples), timed on its own."""
+
+    first_index: int
+    stop_index: int
+    """One past the last sample index."""
+    time_source: str
+    """``sync_pulse``, ``host`` (too few sync edges: the host clock on the GNSS time base), ``host_unmapped``
+    (the host clock itself: no GNSS mapping) or ``log_time``."""
+    sync: SyncFit | None = None
+    note: str = ""
+    """Why the segment is not synchronised (empty when it is)."""
+
+    @property
+    def n_samples(self) -> int:
+        return self.stop_index - self.first_index
+
+
+@dataclass(frozen=True, slots=True)
 class DaqData:
     """One DAQ device's samples joined over all blocks (sample-index order, duplicates removed)."""
 
@@ -172,14 +196,27 @@ class DaqData:
     """Shape (n_channels, n_samples)."""
     time_ns: IntArray
     time_source: str
-    """``sync_pulse`` (sample index → GPS from sync edges and MARKTIME) or ``log_time`` (a line through the
-    blocks' log times)."""
+    """``sync_pulse`` (every segment: sample index → GPS from its sync edges and MARKTIME), ``sync_pulse+host``
+    (some segments fell back to the host clock), ``host`` (all did), or ``log_time`` (no sync channel asked:
+    a line per segment through the blocks' log times)."""
     sync: SyncFit | None = None
+    """The sync fit of the segment with the most matched edges (each segment's own is in ``segments``)."""
     lost: int = 0
     """Samples missing between the first and the last index (gaps in the sample index)."""
+    segments: tuple[DaqSegment, ...] = ()
+    """Unbroken runs of sample indices, each timed on its own (in index order)."""
 
     def __len__(self) -> int:
         return int(self.sample_index.shape[0])
+
+    @property
+    def synced(self) -> BoolArray:
+        """Per sample: its time comes from the sync pulse (False where a segment fell back to the host clock)."""
+        out = np.zeros(self.sample_index.shape, dtype=bool)
+        for seg in self.segments:
+            if seg.time_source == "sync_pulse":
+                out[(self.sample_index >= seg.first_index) & (self.sample_index < seg.stop_index)] = True
+        return out
 
     def channel(self, name: str) -> FloatArray:
         try:
@@ -444,15 +481,36 @@ class Session:
             time=self._gnss_table(T.gnss_time(receiver), all_ok),
         )
 
-    @property
-    def gnss_min_latency_ns(self) -> int:
-        """The constant part of the GNSS log latency (receiver output latency), which the lower envelope cannot see.
+    # --- GNSS latency and the host clock --------------------------------------------------------
 
-        From :func:`load_session`'s ``gnss_min_latency_s``, else the simulated receivers'
-        ``simulation.gnss.output_latency_s`` recorded in the session configuration, else 0.
-        """
-        if self._gnss_min_latency_s is not None:
-            return round(self._gnss_min_latency_s * 1e9)
+    @cached_property
+    def _receiver_configs(self) -> dict[str, dict[str, Any]]:
+        recs = self.config.get("receivers")
+        out: dict[str, dict[str, Any]] = {}
+        if isinstance(recs, list):
+            for rc in recs:
+                if isinstance(rc, dict) and isinstance(rc.get("name"), str):
+                    out[rc["name"]] = rc
+        return out
+
+    def _warn(self, text: str) -> None:
+        if text not in self.warnings:
+            self.warnings = (*self.warnings, text)
+            log.warning("%s", text)
+
+    @property
+    def gnss_min_latency_ns(self) -> int | None:
+        """The constant GNSS log latency given to :func:`load_session` as ``gnss_min_latency_s`` (None:
+        not given; each log's known latency is then :meth:`gnss_log_latency_ns`)."""
+        return None if self._gnss_min_latency_s is None else round(self._gnss_min_latency_s * 1e9)
+
+    def gnss_output_latency_ns(self, receiver: str) -> int:
+        """A receiver's fixed output latency (data time → first byte on the port), which the lower
+        envelope cannot see: ``receivers[].output_latency_s`` of the recorded configuration, else
+        (simulated receivers) ``simulation.gnss.output_latency_s``, else 0."""
+        v = self._receiver_configs.get(receiver, {}).get("output_latency_s")
+        if isinstance(v, int | float) and not isinstance(v, bool):
+            return round(float(v) * 1e9)
         sim = self.config.get("simulation")
         if isinstance(sim, dict):
             gnss = sim.get("gnss")
@@ -460,17 +518,113 @@ class Session:
                 return round(float(gnss["output_latency_s"]) * 1e9)
         return 0
 
+    def gnss_log_latency_ns(self, receiver: str, log_name: str, gps_ns: npt.ArrayLike) -> IntArray:
+        """The known part of the latency of each ``log_name`` log (e.g. ``BESTPOS``) of ``receiver`` at
+        ``gps_ns``: the receiver's output latency plus the log's serial transmission time (frame bytes ×
+        10 bits / the port's baud rate; the host stamps a read when its last byte is in), as the live
+        time base removes them. Binary logs have their fixed length; ASCII logs are measured in the
+        receiver's raw byte stream. Problems (no baud, no raw stream) are noted in :attr:`warnings`.
+        """
+        g = np.asarray(gps_ns, dtype=np.int64)
+        return self.gnss_output_latency_ns(receiver) + self._log_tx_ns(receiver, log_name, g)
+
+    def _log_tx_ns(self, receiver: str, log_name: str, gps_ns: IntArray) -> IntArray:
+        from drivers.novatel.binary import CRC_LEN, LONG_HEADER_LEN
+        from drivers.novatel.layouts import CODECS_BY_NAME
+
+        rc = self._receiver_configs.get(receiver)
+        baud = rc.get("baud") if rc is not None else None
+        if rc is None or not isinstance(baud, int) or isinstance(baud, bool) or baud <= 0:
+            self._warn(f"{self.path}: receiver {receiver!r}: no baud rate in the recorded configuration; the serial "
+                       "transmission time of its logs is not removed from the host clock mapping (a few ms late)")
+            return np.zeros(gps_ns.shape, dtype=np.int64)
+        codec = CODECS_BY_NAME.get(log_name)
+        binary_len = LONG_HEADER_LEN + codec.size + CRC_LEN if codec is not None and codec.fixed_layout else 0
+        suffixes = {str(lr.get("name", ""))[len(log_name):] for lr in rc.get("logs", []) or []
+                    if isinstance(lr, dict) and str(lr.get("name", "")).startswith(log_name)}
+        if binary_len and suffixes == {"B"}:
+            lengths = np.full(gps_ns.shape, binary_len, dtype=np.float64)
+        else:
+            measured = self._raw_frame_lengths(receiver)
+            if measured is None:
+                self._warn(f"{self.path}: receiver {receiver!r}: {log_name} is not a binary log and the raw stream "
+                           f"{T.gnss_raw(receiver)} is not recorded; its transmission time is taken as that of the "
+                           "binary log (a lower bound)")
+                lengths = np.full(gps_ns.shape, binary_len, dtype=np.float64)
+            else:
+                got = [measured.get((log_name, g), -1) for g in gps_ns.tolist()]
+                lengths = np.asarray(got, dtype=np.float64)
+                missing = lengths < 0
+                if missing.any():
+                    self._warn(f"{self.path}: receiver {receiver!r}: {int(missing.sum())} {log_name} logs not found "
+                               f"in the raw stream {T.gnss_raw(receiver)}; their transmission time is a lower bound")
+                    lengths[missing] = binary_len
+        return np.round(lengths * (10e9 / baud)).astype(np.int64)
+
+    def _raw_frame_lengths(self, receiver: str) -> dict[tuple[str, int], int] | None:
+        """(log name, GPS ns) → frame bytes of every log in the receiver's raw stream (None: not recorded)."""
+        from drivers.novatel.framer import Framer
+
+        key = ("raw_lengths", receiver)
+        if key in self._cache:
+            cached: dict[tuple[str, int], int] | None = self._cache[key]
+            return cached
+        topic = T.gnss_raw(receiver)
+        out: dict[tuple[str, int], int] | None = None
+        if self._counts.get(topic):
+            if topic in self._topics:
+                _log_t, pub, data = self._messages(topic)
+            else:  # not loaded: read that topic alone again
+                tms = [tm for p in self.parts for tm in scan_part(p, want=topic.__eq__).topics.values()]
+                pub = np.fromiter((t for tm in tms for t in tm.publish_time), dtype=np.int64)
+                data = [d for tm in tms for d in tm.data]
+            framer = Framer()
+            out = {}
+            for i in np.argsort(pub, kind="stable").tolist():
+                for fr in framer.feed(data[i]):
+                    lg = fr.log
+                    if lg is not None:
+                        out[(lg.name, lg.header.gps_ns)] = len(fr.raw)
+        self._cache[key] = out
+        return out
+
+    def _clock_receivers(self) -> list[str]:
+        """Receivers in the order the live time base chooses its reference: rovers by antenna, then the others."""
+        have = self.receivers()
+        cfgs = self._receiver_configs
+        rovers = sorted((r for r in have if cfgs.get(r, {}).get("role") == "rover"),
+                        key=lambda r: (str(cfgs[r].get("antenna") or "z"), r))
+        return rovers + [r for r in have if r not in rovers]
+
     @cached_property
     def host_clock(self) -> ClockEstimator | None:
-        """The GPS → host clock fitted over the whole session from the GNSS logs (None without GNSS)."""
-        for r in self.receivers():
-            for topic in (T.gnss_bestpos(r), T.gnss_bestvel(r), T.gnss_time(r)):
+        """The GPS → host clock fitted over the whole session from the GNSS logs (None without GNSS).
+
+        The reference receiver's BESTPOS, BESTVEL and TIME logs give (GPS time of the log, host
+        receive time) pairs; the known part of each log's latency (:meth:`gnss_log_latency_ns`, or the
+        constant ``gnss_min_latency_s`` given to :func:`load_session`) is taken off the host time
+        before the lower envelope is fitted, as the live time base does.
+        """
+        for r in self._clock_receivers():
+            gps: list[IntArray] = []
+            ref: list[IntArray] = []
+            for log_name, topic in (("BESTPOS", T.gnss_bestpos(r)), ("BESTVEL", T.gnss_bestvel(r)),
+                                    ("TIME", T.gnss_time(r))):
                 tbl = self._table(topic)
-                if len(tbl) and "gps_time_ns" in tbl and tbl["gps_time_ns"].dtype.kind == "i":
-                    est = ClockEstimator(f"gnss:{r}", min_latency_ns=self.gnss_min_latency_ns)
-                    order = np.argsort(tbl["gps_time_ns"], kind="stable")
-                    est.add_many(tbl["gps_time_ns"][order], tbl.host_ns[order])
-                    return est
+                if not len(tbl) or "gps_time_ns" not in tbl or tbl["gps_time_ns"].dtype.kind != "i":
+                    continue
+                g = tbl["gps_time_ns"]
+                known = (np.full(g.shape, self.gnss_min_latency_ns, dtype=np.int64)
+                         if self.gnss_min_latency_ns is not None else self.gnss_log_latency_ns(r, log_name, g))
+                gps.append(g)
+                ref.append(tbl.host_ns - known)
+            if gps:
+                g_all = np.concatenate(gps)
+                h_all = np.concatenate(ref)
+                order = np.argsort(g_all, kind="stable")
+                est = ClockEstimator(f"gnss:{r}")
+                est.add_many(g_all[order], h_all[order])
+                return est
         return None
 
     def host_to_utc(self, host_ns: npt.ArrayLike) -> tuple[IntArray, bool]:
@@ -589,9 +743,17 @@ class Session:
     ) -> DaqData:
         """The samples of one DAQ device (volts) with their times.
 
-        With ``sync_channel`` (the DAQ channel wired to the sync switch) and a ``receiver`` whose
-        MARKTIME (or MARKPOS) logs saw the same edges, sample index → GPS time comes from
-        :func:`rig.timebase.align_sync_pulses`; otherwise from a line through the blocks' log times.
+        Sample indices restart with every acquisition (a DAQ reconnect); the recorder keeps them
+        unique by starting a new acquisition after an estimated gap, so the file's indices are one
+        clock only within an unbroken run. Each run (:class:`DaqSegment`) is therefore timed on its own:
+
+        - with ``sync_channel`` (the DAQ channel wired to the sync switch) and a ``receiver`` whose
+          MARKTIME (or MARKPOS) logs saw the same edges, sample index → GPS time comes from
+          :func:`rig.timebase.align_sync_pulses` over the run's edges; a run with fewer than two
+          matched edges falls back to the host clock (the blocks' receive times on the GNSS-derived
+          time base, less the DAQ's delivery latency measured on the synchronised runs) and is
+          flagged (:attr:`DaqData.synced`, its segment's ``time_source``, a warning);
+        - otherwise from a line through the run's blocks' log times.
         """
         key = ("daq", device, sync_channel, receiver, sync_low_v, sync_high_v)
         if key in self._cache:
@@ -600,7 +762,7 @@ class Session:
         topic = T.daq_samples(device)
         if topic not in self._counts:
             raise AnalysisError(f"{self.path}: no DAQ samples for device {device!r}; devices: {self.daq_devices()}")
-        log_t, _pub, data = self._messages(topic)
+        log_t, pub_t, data = self._messages(topic)
         try:
             blocks = [T.unpack_daq_block(d) for d in data]
         except DecodeError as exc:
@@ -613,6 +775,7 @@ class Session:
             if b.channel_names != names or b.rate_hz != rate:
                 raise SessionFileError(f"{self.path}: {topic}: channels or rate change between blocks")
         firsts = np.asarray([b.first_sample_index for b in blocks], dtype=np.int64)
+        lengths = np.asarray([b.samples.shape[1] for b in blocks], dtype=np.int64)
         order = np.argsort(firsts, kind="stable")
         idx = np.concatenate([np.arange(blocks[i].first_sample_index, blocks[i].first_sample_index
                                         + blocks[i].samples.shape[1], dtype=np.int64) for i in order])
@@ -621,16 +784,26 @@ class Session:
         if uniq.size != idx.size:
             idx, volts = uniq, volts[:, first_pos]
         lost = int(idx[-1] - idx[0] + 1 - idx.size) if idx.size else 0
-        sync: SyncFit | None = None
+        blk = _Blocks(firsts[order], firsts[order] + lengths[order] - 1, log_t[order], pub_t[order])
+        runs = _runs(idx)
         if sync_channel is not None and receiver is not None:
-            sync = self._daq_sync(device, names, idx, volts, rate, sync_channel, receiver, sync_low_v, sync_high_v,
-                                  firsts, log_t)
-            time_ns = self.gps_to_utc(sync.gps_ns(idx))
-            source = "sync_pulse"
+            time_ns, segments = self._daq_sync(device, names, idx, volts, rate, runs, blk, sync_channel, receiver,
+                                               sync_low_v, sync_high_v)
+            n_sync = sum(s.time_source == "sync_pulse" for s in segments)
+            source = "sync_pulse" if n_sync == len(segments) else ("sync_pulse+host" if n_sync else "host")
         else:
-            time_ns = _line_fit(firsts, log_t, rate)(idx)
+            time_ns = np.empty(idx.size, dtype=np.int64)
+            seg_list: list[DaqSegment] = []
+            for lo, hi in runs:
+                i0, i1 = int(idx[lo]), int(idx[hi - 1])
+                m = (blk.first >= i0) & (blk.first <= i1)
+                time_ns[lo:hi] = _line_fit(blk.first[m], blk.log_t[m], rate)(idx[lo:hi])
+                seg_list.append(DaqSegment(i0, i1 + 1, "log_time"))
+            segments = tuple(seg_list)
             source = "log_time"
-        out = DaqData(device, rate, names, idx, volts, time_ns, source, sync, lost)
+        fits = [s.sync for s in segments if s.sync is not None]
+        best = max(fits, key=lambda f: f.matched_edges.size) if fits else None
+        out = DaqData(device, rate, names, idx, volts, time_ns, source, best, lost, segments)
         self._cache[key] = out
         return out
 
@@ -641,36 +814,84 @@ class Session:
         idx: IntArray,
         volts: FloatArray,
         rate: float,
+        runs: Sequence[tuple[int, int]],
+        blk: _Blocks,
         sync_channel: str,
         receiver: str,
         low: float,
         high: float,
-        firsts: IntArray,
-        log_t: IntArray,
-    ) -> SyncFit:
+    ) -> tuple[IntArray, tuple[DaqSegment, ...]]:
+        """Times of every sample and the segments, each run fitted to the marks on its own."""
         from drivers.daq.sync import find_edges
 
         if sync_channel not in names:
             raise ConfigError(f"DAQ {device}: sync channel {sync_channel!r} not recorded; channels: {list(names)}")
         x = volts[names.index(sync_channel)]
-        # Edges per contiguous run of sample indices (no edge is invented across lost samples).
-        breaks = np.flatnonzero(np.diff(idx) != 1) + 1
-        edges: list[FloatArray] = []
-        for seg_start, seg_end in zip(np.r_[0, breaks], np.r_[breaks, idx.size], strict=True):
-            edges.append(find_edges(x[seg_start:seg_end], low=low, high=high,
-                                    first_sample_index=int(idx[seg_start])))
-        edge_idx = np.concatenate(edges) if edges else np.zeros(0)
         g = self.gnss(receiver)
         marks_tbl = g.marktime if len(g.marktime) else g.markpos
         if len(marks_tbl) == 0:
             raise AnalysisError(f"{self.path}: receiver {receiver!r} has no MARKTIME/MARKPOS to align DAQ {device}")
         marks = marks_tbl["gps_time_ns"].astype(np.int64)
-        # prior: the blocks' log times (host receive time mapped to GPS by the recorder)
-        approx = None
-        if self.leap_seconds is not None:
-            utc = _line_fit(firsts, log_t, rate)(np.round(edge_idx).astype(np.int64))
-            approx = utc - (GPS_EPOCH_UNIX_NS - self.leap_seconds * _NS)
-        return align_sync_pulses(device, edge_idx, marks, rate, approx_gps_ns=approx)
+        utc_minus_gps = None if self.leap_seconds is None else GPS_EPOCH_UNIX_NS - self.leap_seconds * _NS
+        nominal = 1e9 / rate
+        arrival, mapped = self.host_to_utc(blk.pub)
+        fits: list[SyncFit | None] = []
+        reasons: list[str] = []
+        for a, b in runs:
+            i0, i1 = int(idx[a]), int(idx[b - 1])
+            edge_idx = find_edges(x[a:b], low=low, high=high, first_sample_index=i0)
+            m = (blk.first >= i0) & (blk.first <= i1)
+            approx = None
+            if utc_minus_gps is not None and edge_idx.size:
+                # prior: the blocks' receive times on the common base (within a few ms), else their log times
+                if mapped and m.any():
+                    off = int(np.min(arrival[m] - np.round((blk.last[m] - i0) * nominal).astype(np.int64)))
+                    utc = off + np.round((edge_idx - i0) * nominal).astype(np.int64)
+                else:
+                    utc = _line_fit(blk.first[m], blk.log_t[m], rate)(np.round(edge_idx).astype(np.int64))
+                approx = utc - utc_minus_gps
+            try:
+                fit = align_sync_pulses(device, edge_idx, marks, rate, approx_gps_ns=approx)
+            except AnalysisError as exc:
+                fits.append(None)
+                reasons.append(str(exc))
+            else:
+                fits.append(fit)
+                reasons.append("")
+        time_ns = np.empty(idx.size, dtype=np.int64)
+        segments: list[DaqSegment] = []
+        # the host fallback: slope from the synchronised runs (one oscillator), offset from the lower
+        # envelope of the blocks' receive times less the DAQ's delivery latency seen on those runs
+        synced = [(run, f) for run, f in zip(runs, fits, strict=True) if f is not None]
+        period = float(np.mean([f.map.slope for _r, f in synced])) if synced else nominal
+        latency = 0
+        if synced and mapped and utc_minus_gps is not None:
+            per_run = []
+            for (a, b), f in synced:
+                m = (blk.first >= idx[a]) & (blk.first <= idx[b - 1])
+                if m.any():
+                    per_run.append(int(np.min(arrival[m] - (f.gps_ns(blk.last[m]) + utc_minus_gps))))
+            latency = int(np.median(per_run)) if per_run else 0
+        for k, ((a, b), seg_fit) in enumerate(zip(runs, fits, strict=True)):
+            i0, i1 = int(idx[a]), int(idx[b - 1])
+            if seg_fit is not None and utc_minus_gps is not None:
+                time_ns[a:b] = seg_fit.gps_ns(idx[a:b]) + utc_minus_gps
+                segments.append(DaqSegment(i0, i1 + 1, "sync_pulse", seg_fit))
+                continue
+            m = (blk.first >= i0) & (blk.first <= i1)
+            times = arrival[m] if m.any() else blk.pub[:1]
+            lasts = blk.last[m] if m.any() else np.asarray([i1])
+            off = int(np.min(times - np.round((lasts - i0) * period).astype(np.int64))) - latency
+            time_ns[a:b] = off + np.round((idx[a:b] - i0) * period).astype(np.int64)
+            src = "host" if mapped else "host_unmapped"
+            why = reasons[k] if seg_fit is None else "GPS − UTC leap seconds unknown"
+            lat = (f"less the {latency / 1e6:.1f} ms delivery latency of the synchronised segments" if synced
+                   else "late by the DAQ's unknown delivery latency")
+            note = f"not synchronised ({why}): times from the host clock, {lat}"
+            segments.append(DaqSegment(i0, i1 + 1, src, None, note))
+            self._warn(f"{self.path}: DAQ {device}: segment {k + 1} of {len(runs)} (samples {i0}..{i1}, "
+                       f"{(i1 - i0 + 1) / rate:.1f} s) {note}")
+        return time_ns, tuple(segments)
 
     def analog(self, device: str, specs: Sequence[AnalogChannelSpec], **daq_kw: Any) -> dict[str, FloatArray]:
         """Scaled analog channels (SI) of ``device``; times are ``self.daq(device, **daq_kw).time_ns``."""
@@ -748,6 +969,24 @@ def _spec(topic: str) -> tuple[T.TopicSpec | None, dict[str, str]]:
         return None, {}
 
 
+@dataclass(frozen=True, slots=True)
+class _Blocks:
+    """Per DAQ block in index order: first and last sample index, log time, host receive time."""
+
+    first: IntArray
+    last: IntArray
+    log_t: IntArray
+    pub: IntArray
+
+
+def _runs(idx: IntArray) -> list[tuple[int, int]]:
+    """Positions ``[a, b)`` of the unbroken runs of consecutive sample indices."""
+    if idx.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(idx) != 1) + 1
+    return list(zip(np.r_[0, breaks].tolist(), np.r_[breaks, idx.size].tolist(), strict=True))
+
+
 def _line_fit(first_index: IntArray, log_t: IntArray, rate_hz: float) -> Callable[[IntArray], IntArray]:
     """Sample index → time from the blocks' (first index, log time): LS line with the nominal rate as fallback."""
     if first_index.size >= 2 and np.ptp(first_index) > 0:
@@ -780,7 +1019,9 @@ def load_session(
     Messages are kept for ``topics`` (exact names), else for ``include(topic)``, else for every topic
     except the per-frame CAN role JSON and raw byte streams. A truncated *last* part (a killed
     recorder) is read up to its last complete chunk and noted in :attr:`Session.warnings` (unless
-    ``allow_truncated`` is False). ``gnss_min_latency_s``: see :attr:`Session.gnss_min_latency_ns`.
+    ``allow_truncated`` is False). ``gnss_min_latency_s``: a constant GNSS log latency to use instead
+    of each log's known latency (:meth:`Session.gnss_log_latency_ns`: the receiver's configured output
+    latency plus the log's serial transmission time), for sessions whose configuration lacks them.
     Raises :class:`~vsccore.errors.SessionFileError` naming the file
     and part for a missing part, a damaged part, or an unfinished part that is not the last.
     """

@@ -11,7 +11,17 @@ import pytest
 import rig.topics as T  # noqa: N812 - short alias
 from rig.dataset import align, load_session
 from rig.recorder import scan_part
-from tests.dataset.synth import DAQ_G0, TRUE_RATE, Synth, utc, write_session
+from tests.dataset.synth import (
+    BESTPOSB_BYTES,
+    DAQ_G0,
+    OUTPUT_LATENCY_S,
+    TRUE_RATE,
+    Synth,
+    sync_pulses,
+    tx_ns,
+    utc,
+    write_session,
+)
 from vsccore.errors import SessionFileError
 
 
@@ -55,9 +65,11 @@ def test_can_roles_through_vectorised_decoder(synth: Synth) -> None:
     assert len(frames) == synth.can_t_gps.size and frames.time_source == "interface"
     err = frames.time_ns - utc(synth.can_t_gps)
     assert np.max(np.abs(err)) < 1_000_000  # interface clock → host → GPS within 1 ms
-    # the receivers' constant 20 ms output latency is invisible to the envelope; it comes from the config
+    # the receivers' constant 20 ms output latency and the 2.26 ms a BESTPOSB takes on the wire at
+    # 460800 Bd are invisible to the envelope; they come from the recorded configuration
     unaware = load_session(synth.base, gnss_min_latency_s=0.0).can_frames("can0")
-    assert np.median(unaware.time_ns - utc(synth.can_t_gps)) == pytest.approx(-20e6, abs=1e6)
+    hidden = OUTPUT_LATENCY_S * 1e9 + tx_ns(BESTPOSB_BYTES)
+    assert np.median(unaware.time_ns - utc(synth.can_t_gps)) == pytest.approx(-hidden, abs=1e6)
     roles = s.can_roles("can0")
     yaw = roles["yaw_rate"]
     assert bool(np.all(yaw.ok)) and len(yaw) == synth.can_t_gps.size
@@ -125,3 +137,46 @@ def test_missing_corrupt_and_truncated_parts(synth: Synth, tmp_path: Path) -> No
     mid.unlink()
     with pytest.raises(SessionFileError, match=rf"{parts[1].name}: part 1 of session synth is missing"):
         load_session(base)
+
+
+def test_receiver_output_latency_from_the_receiver_config(tmp_path: Path) -> None:
+    """A real receiver's fixed output latency is configured per receiver (``receivers[].output_latency_s``)."""
+    synth = write_session(tmp_path, "real", duration_s=8.0, rollover_bytes=None, simulated=False)
+    s = load_session(synth.base)
+    assert "simulation" not in s.config
+    assert s.gnss_output_latency_ns("rover_a") == round(OUTPUT_LATENCY_S * 1e9)
+    g = s.gnss("rover_a").bestpos["gps_time_ns"][:3]
+    expected = round(OUTPUT_LATENCY_S * 1e9) + tx_ns(BESTPOSB_BYTES)
+    assert np.array_equal(s.gnss_log_latency_ns("rover_a", "BESTPOS", g), np.full(3, expected))
+    err = s.can_frames("can0").time_ns - utc(synth.can_t_gps)
+    assert np.max(np.abs(err)) < 1_000_000 and not s.warnings
+
+
+@pytest.fixture(scope="module")
+def reconnect(tmp_path_factory: pytest.TempPathFactory) -> Synth:
+    """A DAQ that lost its USB link twice: three acquisitions, the last one short and between two sync pulses."""
+    duration = 20.0
+    rel = (sync_pulses(duration) - DAQ_G0) / 1e9
+    quiet = float(rel[rel > 15.3][0]) + 0.3  # after a pulse's falling edge, ≥ 0.9 s before the next rising one
+    segments = [(0.0, 8.0), (9.3, 15.0), (quiet, quiet + 0.6)]
+    return write_session(tmp_path_factory.mktemp("reconnect"), "reconnect", duration_s=duration, rollover_bytes=None,
+                         daq_segments=segments)
+
+
+def test_daq_segments_after_a_reconnect_are_fitted_separately(reconnect: Synth) -> None:
+    s = load_session(reconnect.base)
+    d = s.daq("daq1", sync_channel="sync", receiver="rover_a")
+    assert len(d) == reconnect.daq_n and [seg.n_samples for seg in d.segments] == [8000, 5700, 600]
+    err = d.time_ns - utc(reconnect.daq_true_gps)
+    # the two acquisitions that saw sync pulses: each on GPS time within 0.1 ms
+    assert [seg.time_source for seg in d.segments] == ["sync_pulse", "sync_pulse", "host"]
+    assert d.time_source == "sync_pulse+host"
+    synced = d.synced
+    assert synced.sum() == 13_700 and np.max(np.abs(err[synced])) < 100_000
+    for seg in d.segments[:2]:
+        assert seg.sync is not None and seg.sync.matched_edges.size >= 2
+        assert seg.sync.drift_ppm == pytest.approx(50.0, abs=5.0)
+    # the short one without an edge: the host clock, flagged and warned about
+    assert np.max(np.abs(err[~synced])) < 1_000_000
+    assert d.segments[2].sync is None and "not synchronised" in d.segments[2].note
+    assert any("segment 3 of 3" in w for w in s.warnings)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 from pathlib import Path
 
 import pytest
@@ -222,3 +223,48 @@ def test_damaged_message_index_falls_back_to_the_scan(synth: Synth, tmp_path: Pa
     info = read_session_info(damaged)
     assert info.parts[0].read_via is ReadVia.SCAN and info.parts[0].finalized
     assert info.messages == scan_part(src, collect=False).message_count
+
+
+def test_calibration_results_file_in_text_and_json(synth: Synth, tmp_path: Path) -> None:
+    """``rig calibrate-baseline`` writes ``<base>.calibration.json``; ``rig info`` shows what it holds."""
+    from rig.sessiondata import calibration_file_path, update_calibration_file
+
+    for p in find_parts(synth.base):
+        shutil.copy(p, tmp_path / p.name)
+    base = tmp_path / synth.base.name
+    info = read_session_info(base)
+    assert info.calibration_file is None and info_to_json(info)["calibration_file"] is None
+    assert "(no calibration file" in format_info(info)
+    mount = {"offset_deg": 0.352, "u95_deg": 0.041, "date": "2025-06-01", "session": base.name, "ci_low_deg": 0.311,
+             "ci_high_deg": 0.393, "segments": [{"t_start_s": 12.0, "offset_deg": 0.35}], "warnings": []}
+    update_calibration_file(base, "mount_offset", mount)
+    path = update_calibration_file(base, "optical_zero", {"body": {"zero_deg": 0.25, "u95_deg": 0.02}})
+    assert path == calibration_file_path(base) == tmp_path / f"{base.name}.calibration.json"
+
+    info = read_session_info(find_parts(base)[1])  # any part finds it
+    cf = info.calibration_file
+    assert cf is not None and cf.path == path and cf.problem is None and not info.warnings
+    assert cf.results["mount_offset"]["offset_deg"] == 0.352 and cf.results["optical_zero"]["body"]["zero_deg"] == 0.25
+    doc = info_to_json(info)
+    assert tuple(doc) == INFO_JSON_KEYS
+    assert set(doc["calibration_file"]) <= set(re.findall(r"``(\w+)``", inspect_mod.__doc__ or ""))
+    assert doc["calibration_file"]["path"] == str(path)
+    assert doc["calibration_file"]["results"]["mount_offset"]["segments"] == mount["segments"]
+    json.dumps(doc, allow_nan=False)
+    text = format_info(info)
+    assert f"calibration results ({path.name})" in text
+    for needle in ("offset_deg = 0.352", "u95_deg = 0.041", "date = 2025-06-01", "warnings = []",
+                   "body: zero_deg = 0.25, u95_deg = 0.02", "1 more field (see --json)"):  # the segments table
+        assert needle in text, needle
+    res = runner.invoke(app, ["info", str(base), "--json"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.output)["calibration_file"]["results"]["mount_offset"]["u95_deg"] == 0.041
+    res = runner.invoke(app, ["info", str(base)])
+    assert res.exit_code == 0 and "offset_deg = 0.352" in res.output
+
+    # a damaged file is reported, not raised
+    path.write_text("{ not json", encoding="utf-8")
+    info = read_session_info(base)
+    assert info.calibration_file is not None and info.calibration_file.problem is not None
+    assert any(path.name in w for w in info.warnings)
+    assert "not a JSON calibration file" in format_info(info)
