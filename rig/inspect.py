@@ -74,7 +74,16 @@ from mcap.reader import make_reader
 from mcap.records import Metadata
 
 import rig.topics as T  # noqa: N812 - the module is used as a namespace of topic names
-from rig.recorder.reader import MCAP_MAGIC, ProblemKind, find_parts, part_index, scan_part, session_base
+from rig.recorder.reader import (
+    MCAP_MAGIC,
+    CorruptChunkError,
+    ProblemKind,
+    decompress_chunk,
+    find_parts,
+    part_index,
+    scan_part,
+    session_base,
+)
 from vsccore.errors import SessionFileError
 
 __all__ = [
@@ -425,20 +434,9 @@ def _ends_with_footer(mm: mmap.mmap) -> bool:
 
 def _decompress(compression: str, raw: bytes, usize: int, where: str) -> bytes:
     try:
-        if compression == "zstd":
-            import zstandard
-
-            return zstandard.ZstdDecompressor().decompress(raw, max_output_size=usize)
-        if compression == "lz4":
-            import lz4.frame
-
-            out: bytes = lz4.frame.decompress(raw)
-            return out
-        if compression == "":
-            return raw
-    except Exception as exc:  # the libraries raise their own error types for damaged input
-        raise _NoIndexError(f"{where}: cannot decompress {compression} chunk: {exc}") from exc
-    raise _NoIndexError(f"{where}: unsupported chunk compression {compression!r}")
+        return decompress_chunk(compression, raw, usize, where)
+    except CorruptChunkError as exc:
+        raise _NoIndexError(str(exc)) from exc
 
 
 def _read_indexed(path: Path) -> _PartRead:

@@ -212,7 +212,7 @@ class PartScan:
         raise SessionFileError(f"{self.path}: {self.problem}")
 
 
-class _CorruptError(Exception):
+class CorruptChunkError(Exception):
     pass
 
 
@@ -294,18 +294,18 @@ def _scan(
         t_max = scan.message_end_time
         while q < end:
             if q + 9 > end:
-                raise _CorruptError(f"{where}: record header runs past the end at {q}")
+                raise CorruptChunkError(f"{where}: record header runs past the end at {q}")
             op, ln = _REC.unpack_from(buf, q)
             body = q + 9
             nxt = body + ln
             if nxt > end:
-                raise _CorruptError(f"{where}: record of {ln} bytes runs past the end")
+                raise CorruptChunkError(f"{where}: record of {ln} bytes runs past the end")
             if op == _OP_MESSAGE:
                 if ln < 22:
-                    raise _CorruptError(f"{where}: message record of {ln} bytes is too short")
+                    raise CorruptChunkError(f"{where}: message record of {ln} bytes is too short")
                 cid, seq, log_t, pub_t = _MSG.unpack_from(buf, body)
                 if cid not in targets:
-                    raise _CorruptError(f"{where}: message on unknown channel {cid}")
+                    raise CorruptChunkError(f"{where}: message on unknown channel {cid}")
                 counts[cid] = counts.get(cid, 0) + 1
                 if t_min is None or log_t < t_min:
                     t_min = log_t
@@ -325,7 +325,7 @@ def _scan(
                 ch = _read_record(buf[body:nxt], Channel)
                 assert isinstance(ch, Channel)
                 if ch.schema_id and ch.schema_id not in scan.schemas:
-                    raise _CorruptError(f"{where}: channel {ch.topic} names unknown schema {ch.schema_id}")
+                    raise CorruptChunkError(f"{where}: channel {ch.topic} names unknown schema {ch.schema_id}")
                 add_channel(ch)
             q = nxt
         scan.message_start_time = t_min
@@ -344,10 +344,10 @@ def _scan(
             nxt = body + ln
             if not header_seen:
                 if op != _OP_HEADER:
-                    raise _CorruptError(f"expected the MCAP header at offset {pos}, found opcode 0x{op:02x}")
+                    raise CorruptChunkError(f"expected the MCAP header at offset {pos}, found opcode 0x{op:02x}")
                 header_seen = True
             elif op != _OP_DATA_END and op not in _DATA_OPS and op < 0x80:
-                raise _CorruptError(f"unexpected record opcode 0x{op:02x} at offset {pos} in the data section")
+                raise CorruptChunkError(f"unexpected record opcode 0x{op:02x} at offset {pos} in the data section")
             if nxt > size:
                 raise _TruncatedError(f"the part ends inside a record (opcode 0x{op:02x}) at offset {pos}")
             where = f"record at offset {pos}"
@@ -363,11 +363,11 @@ def _scan(
                     (rlen,) = struct.unpack_from("<Q", mm, body + 32 + clen)
                     rstart = body + 40 + clen
                     if rstart + rlen > nxt:
-                        raise _CorruptError(f"chunk at offset {pos}: records run past the chunk")
+                        raise CorruptChunkError(f"chunk at offset {pos}: records run past the chunk")
                     raw = mm[rstart : rstart + rlen]
-                    data = _decompress(comp, raw, usize, where)
+                    data = decompress_chunk(comp, raw, usize, where)
                     if validate_crcs and ucrc and zlib.crc32(data) != ucrc:
-                        raise _CorruptError(f"chunk at offset {pos}: CRC mismatch (damaged data)")
+                        raise CorruptChunkError(f"chunk at offset {pos}: CRC mismatch (damaged data)")
                     on_messages(data, 0, len(data), f"chunk at offset {pos}")
                     scan.chunks.append(ChunkInfo(pos, nxt - pos, _t0, _t1, comp, int(rlen), usize))
                 elif op in (_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE):
@@ -382,12 +382,12 @@ def _scan(
                     assert isinstance(att, Attachment)
                     (acrc,) = struct.unpack_from("<I", mm, nxt - 4)
                     if validate_crcs and acrc and zlib.crc32(mm[body : nxt - 4]) != acrc:
-                        raise _CorruptError(f"attachment {att.name!r} at offset {pos}: CRC mismatch")
+                        raise CorruptChunkError(f"attachment {att.name!r} at offset {pos}: CRC mismatch")
                     scan.attachments.append((att, RecordRef(pos, nxt - pos)))
             except (struct.error, UnicodeDecodeError, ValueError, IndexError) as exc:
-                if isinstance(exc, _CorruptError):
+                if isinstance(exc, CorruptChunkError):
                     raise
-                raise _CorruptError(f"{where} (opcode 0x{op:02x}) is damaged: {exc}") from exc
+                raise CorruptChunkError(f"{where} (opcode 0x{op:02x}) is damaged: {exc}") from exc
             pos = nxt
             if op == _OP_DATA_END:
                 scan.data_end_found = True
@@ -399,12 +399,13 @@ def _scan(
     except _TruncatedError as exc:
         scan.problem = str(exc)
         scan.problem_kind = ProblemKind.TRUNCATED
-    except _CorruptError as exc:
+    except CorruptChunkError as exc:
         scan.problem = str(exc)
         scan.problem_kind = ProblemKind.CORRUPT
 
 
-def _decompress(compression: str, raw: bytes, usize: int, where: str) -> bytes:
+def decompress_chunk(compression: str, raw: bytes, usize: int, where: str) -> bytes:
+    """Decompress one MCAP chunk; raises CorruptChunkError naming ``where`` on damaged or unknown data."""
     try:
         if compression == "zstd":
             import zstandard
@@ -418,8 +419,8 @@ def _decompress(compression: str, raw: bytes, usize: int, where: str) -> bytes:
         if compression == "":
             return raw
     except Exception as exc:  # the libraries raise their own error types for damaged input
-        raise _CorruptError(f"{where}: cannot decompress {compression} chunk: {exc}") from exc
-    raise _CorruptError(f"{where}: unsupported chunk compression {compression!r}")
+        raise CorruptChunkError(f"{where}: cannot decompress {compression} chunk: {exc}") from exc
+    raise CorruptChunkError(f"{where}: unsupported chunk compression {compression!r}")
 
 
 def _has_footer(mm: mmap.mmap) -> bool:
