@@ -7,14 +7,16 @@ On a straight road at steady speed the true sideslip is (very nearly) zero, so
 - the slip angle an optical sensor reports (moved to the CG; with r ≈ 0 the lever arm hardly
   matters) minus the GNSS sideslip (≈ 0) is the sensor's *zero offset*.
 
-Uncertainty (see :mod:`calibration.stats`): each straight run is located with a Huber estimate;
-its standard error comes from an AR(1) model of the within-run noise whose lag-1 coefficient is
-pooled over all runs (samples 50 ms apart are far from independent: with τ ≈ 1 s a 5 s run at
-20 Hz holds about three independent samples, not a hundred). Runs in the same direction are
-combined by inverse-variance weighting, inflated by the Birge ratio when they scatter more than
-their own uncertainties. When runs exist in both directions the estimate is the plain mean of the
-two direction means: a cross wind (or anything else whose sideslip flips sign with the driving
-direction) cancels, and a disagreement between the directions is reported as a warning.
+Uncertainty (see :mod:`calibration.stats`): each straight run is located with a Huber estimate.
+Its samples (50 ms apart) are far from independent: the noise is modelled as white noise plus a
+Gauss–Markov process (ARMA(1,1)) whose white share and correlation time are pooled over all runs by
+their restricted likelihood, and the interval integrates over the values the data leave open
+(with τ ≈ 1 s a few runs of 5–10 s pin the correlation time down poorly, and the variance of a
+run's mean grows with it). Runs in the same direction are combined by inverse-variance weighting,
+inflated by the Birge ratio when they scatter more than the model says. When runs exist in both
+directions the estimate is the plain mean of the two direction means: a cross wind (or anything
+else whose sideslip flips sign with the driving direction) cancels, and a disagreement between the
+directions is reported as a warning.
 """
 
 from __future__ import annotations
@@ -36,16 +38,10 @@ from calibration.segments import (
     find_straight_segments,
 )
 from calibration.stats import (
-    Ar1BiasTable,
-    CombinedEstimate,
-    LocationEstimate,
-    average_of_two,
-    block_residuals,
-    combine,
-    correlated_location,
-    pooled_ar1,
-    pooled_lag1,
-    studentized_quantiles,
+    DEFAULT_MAX_CORRELATION_S,
+    equivalent_dof,
+    method_text,
+    straight_run_stats,
 )
 from vsccore.angles import (
     FloatArray,
@@ -61,6 +57,8 @@ DEFAULT_LENGTH_TOLERANCE_M = 0.03
 MIN_SAMPLES_PER_SEGMENT = 5
 LARGE_OFFSET_RAD = math.radians(10.0)
 GROSS_FACTOR = 3.0
+REFERENCE_MAX_SAMPLES = 24_000
+"""At most this many baseline-length samples serve as noise reference (20 min at 20 Hz)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -130,13 +128,18 @@ class OffsetEstimate:
     ci_high_rad: float
     confidence: float
     coverage_factor: float
-    """k of the interval offset ± k·σ (simulated quantile of |error|/σ, see :mod:`calibration.stats`)."""
+    """k of the interval offset ± k·σ (quantile of the likelihood-weighted mixture, see :mod:`calibration.stats`)."""
     dof: float
-    ar1_phi: float
-    """Pooled lag-1 autocorrelation of the within-run noise (per sample, median-unbiased)."""
-    ar1_phi_upper: float
-    """Its one-sided 84 % upper bound, at which the interval's coverage factor is simulated."""
+    """Degrees of freedom of the Student-t with the same coverage factor (1000: as good as normal)."""
+    noise_sigma_rad: float
+    """Per-sample standard deviation of the within-run noise (winsorised)."""
+    noise_white_share: float
+    """Share of that variance that is white (likelihood-weighted mean); the rest is Gauss–Markov."""
+    noise_correlation_time_s: float
+    """Correlation time of the Gauss–Markov part (likelihood-weighted median, s)."""
     method: str
+    uncertainty_method: str
+    """How the interval was found, in words (for reports)."""
     segments: tuple[SegmentOffset, ...]
     groups: tuple[DirectionGroup, ...]
     warnings: tuple[str, ...]
@@ -151,9 +154,11 @@ class OffsetEstimate:
             "confidence": self.confidence,
             "coverage_factor": self.coverage_factor,
             "dof": self.dof,
-            "ar1_phi": self.ar1_phi,
-            "ar1_phi_upper": self.ar1_phi_upper,
+            "noise_sigma_deg": math.degrees(self.noise_sigma_rad),
+            "noise_white_share": self.noise_white_share,
+            "noise_correlation_time_s": self.noise_correlation_time_s,
             "method": self.method,
+            "uncertainty_method": self.uncertainty_method,
             "segments": [s.to_dict() for s in self.segments],
             "direction_groups": [g.to_dict() for g in self.groups],
             "warnings": list(self.warnings),
@@ -250,6 +255,18 @@ class OpticalZeroResult:
         return d
 
 
+@dataclass(frozen=True, slots=True)
+class NoiseReference:
+    """Blocks of a series whose noise has the shape of the slow part of the offset samples' noise.
+
+    See :func:`calibration.stats.fit_noise` (``reference``).
+    """
+
+    name: str
+    blocks: tuple[FloatArray, ...]
+    duration_s: float
+
+
 # --------------------------------------------------------------------------------------------
 
 
@@ -271,18 +288,22 @@ def estimate_offset_from_straights(
     *,
     confidence: float = 0.95,
     quantity: str = "offset",
+    max_correlation_s: float = DEFAULT_MAX_CORRELATION_S,
+    reference: NoiseReference | None = None,
 ) -> OffsetEstimate:
     """Robust offset with an honest confidence interval from per-sample offsets on straight runs.
 
     ``offset_samples_rad`` is any angle whose true value is the constant offset on a straight run
     (e.g. baseline azimuth − course). Samples are selected by time (``Segment.mask``), so the
     arrays may come from another device than the one the segments were found on. NaNs are skipped.
-    ``quantity`` names the thing in messages.
+    ``quantity`` names the thing in messages. ``max_correlation_s`` bounds the correlation time of
+    the noise the interval allows for; ``reference`` is a series whose noise has the shape of the
+    slow part of these samples' noise (:func:`calibration.stats.fit_noise`), on the same time base.
 
     Raises:
         CalibrationError: no segment, or no segment with at least 5 finite samples.
     """
-    t, _ = check_time(t_s)
+    t, dt = check_time(t_s)
     x = _array(quantity, offset_samples_rad, t.size)
     if not segments:
         raise CalibrationError(f"{quantity}: no straight segments given")
@@ -309,33 +330,34 @@ def estimate_offset_from_straights(
             f"{quantity}: none of the {len(segments)} straight runs has {MIN_SAMPLES_PER_SEGMENT} finite samples "
             "in the data given (time bases mismatched?)"
         )
-    resid = [block_residuals(b) for b in blocks]
-    table = Ar1BiasTable([b.size for b in blocks])
-    phi = pooled_ar1(resid, table=table)
-    phi_upper = max(phi, float(table.upper(pooled_lag1(resid))))
-    # One continuous scale for all runs: about the circular mean of the run means.
+    # One continuous scale for all runs: about the circular mean of the run medians.
     run_means = np.array([wrap_pi(r + float(np.median(b))) for r, b in zip(refs, blocks, strict=True)])
     centre = _circular_mean(run_means)
-    estimates: list[LocationEstimate] = []
-    for ref, b in zip(refs, blocks, strict=True):
-        est = correlated_location(b, phi)
-        shift = float(wrap_pi(ref - centre))
-        estimates.append(
-            LocationEstimate(est.value + shift, est.std_error, est.dof, est.n_samples, est.n_effective)
-        )
+    shifted = [b + float(wrap_pi(r - centre)) for r, b in zip(refs, blocks, strict=True)]
 
     # Direction groups: within ±90° of the longest run's course, and the rest.
     ref_course = max(used, key=lambda s: s.duration_s).course_rad
     same = [abs(float(wrap_pi(s.course_rad - ref_course))) <= math.pi / 2.0 for s in used]
     group_members = [m for m in ([i for i, f in enumerate(same) if f], [i for i, f in enumerate(same) if not f]) if m]
-    # Interval half widths: quantiles of |error|/σ of this very estimator, simulated (bootstrap-t).
-    # Simulated at the 84 % upper bound of φ, since a few runs pin φ down poorly and larger φ widens them.
-    sq = studentized_quantiles([b.size for b in blocks], group_members, phi_upper, confidence, table=table)
+    st = straight_run_stats(
+        shifted,
+        group_members,
+        dt_s=dt,
+        confidence=confidence,
+        max_correlation_s=max_correlation_s,
+        reference=list(reference.blocks) if reference is not None and reference.blocks else None,
+    )
+    ref_used = bool(st.reference_used[0])
+    if reference is not None and reference.blocks and not ref_used:
+        warnings.append(
+            f"the noise of {reference.name} does not match that of the {quantity} samples (Bayes factor "
+            f"{math.exp(-float(st.reference_log_bf[0])):.0f} against); interval from the straight runs alone"
+        )
 
     seg_results: list[SegmentOffset] = []
-    for seg, est, k_blk in zip(used, estimates, sq.blocks, strict=True):
-        h = k_blk * est.std_error
-        offset = float(wrap_pi(centre + est.value))
+    for j, (seg, b) in enumerate(zip(used, blocks, strict=True)):
+        h = float(st.blocks.half_width[j, 0])
+        offset = float(wrap_pi(centre + st.blocks.value[j, 0]))
         seg_results.append(
             SegmentOffset(
                 t_start_s=seg.t_start_s,
@@ -343,50 +365,45 @@ def estimate_offset_from_straights(
                 mean_speed_mps=seg.mean_speed_mps,
                 course_rad=seg.course_rad,
                 offset_rad=offset,
-                std_error_rad=est.std_error,
+                std_error_rad=float(st.blocks.std_error[j, 0]),
                 ci_low_rad=offset - h,
                 ci_high_rad=offset + h,
-                n_samples=est.n_samples,
-                n_effective=est.n_effective,
+                n_samples=int(b.size),
+                n_effective=float(st.n_effective[j, 0]),
             )
         )
 
-    groups: list[tuple[CombinedEstimate, DirectionGroup]] = []
-    for members, k_grp in zip(group_members, sq.groups, strict=True):
-        comb = combine([estimates[i] for i in members])
-        h = k_grp * comb.std_error
-        offset = float(wrap_pi(centre + comb.value))
+    groups: list[DirectionGroup] = []
+    for g, members in enumerate(group_members):
+        h = float(st.groups.half_width[g, 0])
+        offset = float(wrap_pi(centre + st.groups.value[g, 0]))
         courses = np.array([used[i].course_rad for i in members])
+        birge = float(st.birge_ratio[g, 0])
         groups.append(
-            (
-                comb,
-                DirectionGroup(
-                    course_rad=float(wrap_2pi(_circular_mean(courses))),
-                    offset_rad=offset,
-                    std_error_rad=comb.std_error,
-                    ci_low_rad=offset - h,
-                    ci_high_rad=offset + h,
-                    n_segments=len(members),
-                    birge_ratio=comb.birge_ratio,
-                ),
+            DirectionGroup(
+                course_rad=float(wrap_2pi(_circular_mean(courses))),
+                offset_rad=offset,
+                std_error_rad=float(st.groups.std_error[g, 0]),
+                ci_low_rad=offset - h,
+                ci_high_rad=offset + h,
+                n_segments=len(members),
+                birge_ratio=birge,
             )
         )
-        if len(members) > 1 and comb.chi2_p_value < 0.01:
+        if len(members) > 1 and float(st.chi2_p_value[g, 0]) < 0.01:
             warnings.append(
-                f"the {len(members)} runs at course {math.degrees(groups[-1][1].course_rad):.0f}° scatter more than "
-                f"their noise explains (Birge ratio {comb.birge_ratio:.2f}); uncertainty inflated accordingly"
+                f"the {len(members)} runs at course {math.degrees(groups[-1].course_rad):.0f}° scatter more than "
+                f"their noise explains (Birge ratio {birge:.2f}); uncertainty inflated accordingly"
             )
 
-    if len(groups) == 2:
-        (ca, ga), (cb, gb) = groups
-        total = average_of_two(ca, cb)
+    if len(groups) == 2 and st.difference is not None:
+        ga, gb = groups
         method = (
             f"direction-balanced mean of {ga.n_segments} run(s) at {math.degrees(ga.course_rad):.0f}° and "
             f"{gb.n_segments} run(s) at {math.degrees(gb.course_rad):.0f}°"
         )
-        diff = ca.value - cb.value
-        se_diff = math.hypot(ca.std_error, cb.std_error)
-        h = sq.difference * se_diff
+        diff = float(st.difference.value[0])
+        h = float(st.difference.half_width[0])
         if abs(diff) > h:
             warnings.append(
                 f"runs in opposite directions disagree: {quantity} {math.degrees(ga.offset_rad):.3f}° at course "
@@ -396,14 +413,15 @@ def estimate_offset_from_straights(
                 "cancels a bias that flips sign with the direction, not one that does not"
             )
     else:
-        total = groups[0][0]
-        method = f"inverse-variance mean of {total.n_blocks} run(s) in one direction"
+        method = f"inverse-variance mean of {groups[0].n_segments} run(s) in one direction"
         warnings.append(
-            f"all straight runs in one direction (course {math.degrees(groups[0][1].course_rad):.0f}°): a cross wind "
+            f"all straight runs in one direction (course {math.degrees(groups[0].course_rad):.0f}°): a cross wind "
             "or road crown would bias the result undetected; drive the straight both ways"
         )
-    value = float(wrap_pi(centre + total.value))
-    h = sq.total * total.std_error
+    value = float(wrap_pi(centre + st.total.value[0]))
+    se = float(st.total.std_error[0])
+    h = float(st.total.half_width[0])
+    k = h / se if se > 0.0 else 0.0
     if abs(value) > LARGE_OFFSET_RAD:
         warnings.append(
             f"{quantity} {math.degrees(value):.1f}° is implausibly large: antennas or channels swapped, "
@@ -411,19 +429,84 @@ def estimate_offset_from_straights(
         )
     return OffsetEstimate(
         offset_rad=value,
-        std_error_rad=total.std_error,
+        std_error_rad=se,
         ci_low_rad=value - h,
         ci_high_rad=value + h,
         confidence=confidence,
-        coverage_factor=sq.total,
-        dof=total.dof,
-        ar1_phi=phi,
-        ar1_phi_upper=phi_upper,
+        coverage_factor=k,
+        dof=equivalent_dof(k, confidence),
+        noise_sigma_rad=float(st.sigma[0]),
+        noise_white_share=float(st.white_share[0]),
+        noise_correlation_time_s=float(st.correlation_time_s[0]),
         method=method,
+        uncertainty_method=method_text(
+            confidence,
+            dt,
+            max_correlation_s,
+            reference=reference.name if reference is not None and ref_used else "",
+            reference_s=reference.duration_s if reference is not None else 0.0,
+        ),
         segments=tuple(seg_results),
-        groups=tuple(g for _, g in groups),
+        groups=tuple(groups),
         warnings=tuple(warnings),
     )
+
+
+def length_reference(
+    segments: Sequence[Segment],
+    t_s: npt.ArrayLike,
+    baseline_length_m: npt.ArrayLike,
+    *,
+    usable_mask: npt.ArrayLike | None = None,
+    tolerance_m: float = DEFAULT_LENGTH_TOLERANCE_M,
+    max_samples: int = REFERENCE_MAX_SAMPLES,
+) -> NoiseReference:
+    """The measured antenna separation as noise reference for the baseline heading.
+
+    Its error is the relative position error *along* the baseline, the heading's is the one
+    *across* it: with horizontally isotropic errors they share their spectrum, and a whole session
+    of it tells the correlation time far better than a few short runs. Samples: ``usable_mask``
+    (both rovers RTK fixed; the straight runs when not given) and finite, without gross length
+    errors (wrong fix: off the median by more than GROSS_FACTOR × ``tolerance_m``), in gap-free
+    stretches of at least 1 s; at most ``max_samples`` of them, the stretches nearest to the
+    straight runs first.
+    """
+    t, dt = check_time(t_s)
+    length = _array("baseline_length_m", baseline_length_m, t.size)
+    if usable_mask is None:
+        ok = np.zeros(t.size, dtype=bool)
+        for seg in segments:
+            ok |= seg.mask(t)
+    else:
+        ok = np.asarray(usable_mask, dtype=bool)
+        if ok.shape != t.shape:
+            raise CalibrationError(f"usable_mask: shape {ok.shape} differs from t_s shape {t.shape}")
+    ok &= np.isfinite(length)
+    if np.any(ok):  # about the median, not the configured length: a wrong configuration is flagged elsewhere
+        ok &= np.abs(length - float(np.median(length[ok]))) <= GROSS_FACTOR * tolerance_m
+    if dt <= 0.0 or not np.any(ok):
+        return NoiseReference("the antenna baseline length", (), 0.0)
+    cut = np.ones(t.size, dtype=bool)
+    cut[1:] = (np.diff(t) > 1.5 * dt) | ~ok[:-1]
+    starts = [int(i) for i in np.flatnonzero(ok & cut)]
+    stretches: list[tuple[int, int]] = []
+    for i in starts:
+        j = i + 1
+        while j < t.size and ok[j] and not cut[j]:
+            j += 1
+        if (j - i) * dt >= 1.0:
+            stretches.append((i, j))
+    centres = np.array([0.5 * (s.t_start_s + s.t_stop_s) for s in segments]) if segments else np.zeros(1)
+    stretches.sort(key=lambda ij: float(np.min(np.abs(centres - 0.5 * (t[ij[0]] + t[ij[1] - 1])))))
+    blocks: list[FloatArray] = []
+    total = 0
+    for i, j in stretches:
+        take = int(min(j - i, max_samples - total))
+        if take < 20:
+            break
+        blocks.append(np.asarray(length[i : i + take], dtype=np.float64))
+        total += take
+    return NoiseReference("the antenna baseline length", tuple(blocks), total * dt)
 
 
 def check_baseline_length(
@@ -473,12 +556,18 @@ def estimate_mount_offset(
     *,
     length_tolerance_m: float = DEFAULT_LENGTH_TOLERANCE_M,
     confidence: float = 0.95,
+    max_correlation_s: float = DEFAULT_MAX_CORRELATION_S,
+    rtk_fixed_mask: npt.ArrayLike | None = None,
+    length_as_noise_reference: bool = True,
 ) -> MountOffsetResult:
     """Antenna-baseline mounting offset from straight runs (see :class:`MountOffsetResult` for the sign).
 
     ``heading_rad`` is the azimuth of the baseline B → A (dual-antenna heading), ``course_rad`` the
     course over ground, ``baseline_length_m`` the measured antenna separation, all on ``t_s`` (s).
     On a straight run the true sideslip is ≈ 0, so heading − course is the offset.
+    ``rtk_fixed_mask`` (True where both rovers are RTK fixed) lets the whole session's baseline
+    length serve as noise reference (:func:`length_reference`; without it, the straight runs' only);
+    ``length_as_noise_reference`` False uses the straight runs' heading − course alone.
 
     Raises:
         CalibrationError: no usable run, mismatched arrays, or a non-positive nominal length.
@@ -487,7 +576,20 @@ def estimate_mount_offset(
     heading = _array("heading_rad", heading_rad, t.size)
     course = _array("course_rad", course_rad, t.size)
     samples = sideslip_from_azimuths(heading, course)
-    est = estimate_offset_from_straights(segments, t, samples, confidence=confidence, quantity="mounting offset")
+    ref = (
+        length_reference(segments, t, baseline_length_m, usable_mask=rtk_fixed_mask, tolerance_m=length_tolerance_m)
+        if length_as_noise_reference
+        else None
+    )
+    est = estimate_offset_from_straights(
+        segments,
+        t,
+        samples,
+        confidence=confidence,
+        quantity="mounting offset",
+        max_correlation_s=max_correlation_s,
+        reference=ref,
+    )
     base = check_baseline_length(segments, t, baseline_length_m, nominal_length_m, tolerance_m=length_tolerance_m)
     warnings = list(est.warnings)
     if not base.ok:
@@ -513,6 +615,7 @@ def estimate_optical_zero(
     *,
     reference_beta_rad: npt.ArrayLike | None = None,
     confidence: float = 0.95,
+    max_correlation_s: float = DEFAULT_MAX_CORRELATION_S,
 ) -> OpticalZeroResult:
     """Slip-angle zero of an optical sensor from straight runs.
 
@@ -533,7 +636,9 @@ def estimate_optical_zero(
     beta = sideslip_from_velocity(vx_cg, vy_cg)
     if reference_beta_rad is not None:
         beta = np.asarray(wrap_pi(beta - _array("reference_beta_rad", reference_beta_rad, t.size)), dtype=float)
-    est = estimate_offset_from_straights(segments, t, beta, confidence=confidence, quantity="optical slip zero")
+    est = estimate_offset_from_straights(
+        segments, t, beta, confidence=confidence, quantity="optical slip zero", max_correlation_s=max_correlation_s
+    )
     return OpticalZeroResult(estimate=est, sensor_xy_m=(float(sensor_xy_m[0]), float(sensor_xy_m[1])))
 
 
@@ -568,6 +673,7 @@ def calibrate_mount_offset(
     min_duration_s: float = DEFAULT_MIN_STRAIGHT_S,
     length_tolerance_m: float = DEFAULT_LENGTH_TOLERANCE_M,
     confidence: float = 0.95,
+    max_correlation_s: float = DEFAULT_MAX_CORRELATION_S,
 ) -> MountOffsetResult:
     """The whole ``rig calibrate-baseline`` computation on arrays at the GNSS epochs.
 
@@ -599,4 +705,6 @@ def calibrate_mount_offset(
         nominal_length_m,
         length_tolerance_m=length_tolerance_m,
         confidence=confidence,
+        max_correlation_s=max_correlation_s,
+        rtk_fixed_mask=rtk_fixed_mask,
     )

@@ -262,9 +262,11 @@ class BaselineCalibration:
             "confidence": est.confidence,
             "coverage_factor": est.coverage_factor,
             "dof": est.dof,
-            "ar1_phi": est.ar1_phi,
+            "noise_sigma_deg": math.degrees(est.noise_sigma_rad),
+            "noise_white_share": est.noise_white_share,
+            "noise_correlation_time_s": est.noise_correlation_time_s,
             "method": est.method,
-            "uncertainty_method": UNCERTAINTY_TEXT,
+            "uncertainty_method": est.uncertainty_method,
             "in_force_offset_deg": self.in_force_offset_deg,
             "segments": segs,
             "direction_groups": [g.to_dict() for g in est.groups],
@@ -285,17 +287,6 @@ class BaselineCalibration:
                 "true_optical_zero_deg": dict(self.truth_optical_zero_deg),
             }
         return out
-
-
-UNCERTAINTY_TEXT = (
-    "Each straight run gives a Huber (robust) mean of heading − course; samples 50 ms apart are correlated, so "
-    "its standard error comes from an AR(1) model of the within-run noise with the lag-1 coefficient pooled over "
-    "all runs (a 5 s run holds only a few independent samples). Runs in one direction are combined by inverse-"
-    "variance weights, inflated by the Birge ratio when they scatter more than their errors; with runs in both "
-    "directions the offset is the mean of the two direction means (cross-wind and road-crown effects cancel). "
-    "The 95 % interval uses a coverage factor simulated for that estimator at the upper bound of the AR(1) "
-    "coefficient."
-)
 
 
 def _compass(az_rad: float) -> str:
@@ -335,7 +326,7 @@ def calibrate_baseline(inputs: SessionInputs, options: BaselineOptions | None = 
                  f"fixed in {100.0 * float(np.mean(fixed)):.0f} %; yaw rate from {yaw_src}.")
         raise CalibrationError(f"{diag.message if diag.n_samples else exc}{extra}") from None
     mount = estimate_mount_offset(segments, g.t_s, g.baseline_azimuth_rad, course, g.baseline_length_m, nominal,
-                                  length_tolerance_m=tol, confidence=opts.confidence)
+                                  length_tolerance_m=tol, confidence=opts.confidence, rtk_fixed_mask=fixed)
     warnings = list(mount.warnings)
     if not yaw_src.startswith("CAN"):
         warnings.append(f"yaw rate taken from the {yaw_src}: straight runs found with a noisier criterion")
@@ -417,7 +408,10 @@ def format_baseline(cal: BaselineCalibration) -> str:
     if cal.truth_offset_deg is not None:
         err = cal.offset_deg - cal.truth_offset_deg
         lines.append(f"  simulation truth {cal.truth_offset_deg:+.3f}°: error {err:+.4f}°")
-    lines.append(f"  uncertainty: {UNCERTAINTY_TEXT}")
+    lines.append(f"  within-run noise: σ {math.degrees(est.noise_sigma_rad):.3f}° per sample, "
+                 f"{100 * est.noise_white_share:.0f} % white, the rest correlated over ≈ "
+                 f"{est.noise_correlation_time_s:.2g} s")
+    lines.append(f"  uncertainty: {est.uncertainty_method}")
     b = cal.mount.baseline
     flag = "OK" if cal.length_ok else "FLAGGED (wrong RTK fix or wrong configuration?)"
     lines += ["", (f"baseline length {b.mean_m:.4f} m (spread σ {1000 * b.std_m:.1f} mm, "

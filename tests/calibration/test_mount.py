@@ -14,8 +14,9 @@ from calibration.mount import (
     check_baseline_length,
     estimate_mount_offset,
     estimate_optical_zero,
+    length_reference,
 )
-from calibration.segments import find_straight_segments
+from calibration.segments import Segment, find_straight_segments
 from sim_devices.vehicle import Drive, GroundTruth, make_scenario, simulate
 from tests.calibration.observe import BASELINE_M, observe
 from tests.calibration.synth import straight_drive
@@ -42,18 +43,30 @@ def two_straights() -> GroundTruth:
 
 
 def test_offset_recovered_within_002_deg_from_two_opposite_runs(two_straights: GroundTruth) -> None:
-    """Issue 8: an injected mounting offset comes back within 0.02° (RTK-level noise, 12 noise realisations)."""
+    """Issue 8: an injected mounting offset comes back within 0.02° from two ≥ 5 s runs (12 noise realisations).
+
+    Noise (tests.calibration.observe.RtkNoise): each antenna 2 mm per horizontal axis of its own, white,
+    so the A − B difference has 2.8 mm per axis, i.e. 0.10° of baseline heading per epoch at 1.58 m.
+    That is RTK-level for the *relative* error: dual-antenna receivers specify about 0.08° RMS heading at
+    2 m separation (2.8 mm across the baseline). On top, 1 cm per axis common to both antennas
+    (Gauss–Markov, τ = 30 s), which cancels in the baseline, and Doppler velocity noise of 1.5 cm/s per
+    axis (0.08° of course at 40 km/h). The relative error is white here; when it wanders slowly (the
+    simulator's default: 70 % Gauss–Markov with τ = 1 s, 3.35 mm per axis) two 5 s runs cannot give
+    0.02° (RMS error ≈ 0.03–0.04°) and the stated interval says so (test_coverage).
+    """
     errors, covered, half_widths = [], [], []
     for seed in range(12):
         obs = observe(two_straights, mount_offset_rad=OFFSET, seed=seed)
         segs = find_straight_segments(obs.t, obs.speed, obs.yaw_rate, obs.course, obs.rtk_fixed)
         assert len(segs) == 2 and all(s.duration_s >= 5.0 for s in segs)
-        res = estimate_mount_offset(segs, obs.t, obs.heading, obs.course, obs.baseline_length, BASELINE_M)
+        res = estimate_mount_offset(segs, obs.t, obs.heading, obs.course, obs.baseline_length, BASELINE_M,
+                                    rtk_fixed_mask=obs.rtk_fixed)
         est = res.estimate
         errors.append(math.degrees(res.offset_rad - OFFSET))
         covered.append(est.ci_low_rad <= OFFSET <= est.ci_high_rad)
         half_widths.append(math.degrees(est.ci_high_rad - est.offset_rad))
         assert res.baseline.ok and not res.warnings
+        assert "antenna baseline length" in est.uncertainty_method
     err = np.abs(errors)
     print(f"offset error: RMS {math.sqrt(np.mean(err**2)):.4f}°, max {err.max():.4f}°; "
           f"95 % half width median {np.median(half_widths):.4f}°; coverage {np.mean(covered):.2f}")
@@ -165,3 +178,25 @@ def test_no_usable_segment_raises() -> None:
     t = np.arange(100) * 0.05
     with pytest.raises(CalibrationError, match="no straight segments given"):
         estimate_mount_offset([], t, np.zeros(100), np.zeros(100), np.full(100, 1.58), 1.58)
+
+
+def test_length_reference_stretches() -> None:
+    """The noise reference: RTK-fixed, gap-free stretches of at least 1 s without wrong-fix jumps, nearest first."""
+    t = np.arange(2000) * 0.05
+    rng = np.random.default_rng(12)
+    length = 1.58 + 0.003 * rng.standard_normal(t.size)
+    fixed = np.ones(t.size, dtype=bool)
+    fixed[500:520] = False  # float solution: cut
+    length[900:905] += 0.3  # wrong fix: cut
+    t[1500:] += 2.0  # time gap: cut
+    fixed[1990:] = False  # leaves a 0.5 s stretch at 1980..1989: too short
+    segs = [Segment(100, 300, t[100], t[299], 10.0, 11.0, 0.0, 0.001, 200)]
+    ref = length_reference(segs, t, length, usable_mask=fixed)
+    sizes = [b.size for b in ref.blocks]
+    assert sizes == [500, 380, 595, 490]  # nearest to the run first
+    assert ref.duration_s == pytest.approx(sum(sizes) * 0.05)
+    assert max(abs(float(b.max()) - 1.58) for b in ref.blocks) < 0.05
+    capped = length_reference(segs, t, length, usable_mask=fixed, max_samples=600)
+    assert [b.size for b in capped.blocks] == [500, 100]  # the cap takes the next stretch in part
+    only_runs = length_reference(segs, t, length)
+    assert [b.size for b in only_runs.blocks] == [200]
