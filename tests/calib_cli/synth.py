@@ -181,7 +181,10 @@ def write_truth_session(
             ve = np.interp(ts, truth.t, ve) + rng.normal(0.0, vel_noise_mps, ts.size)
             vn = np.interp(ts, truth.t, vn) + rng.normal(0.0, vel_noise_mps, ts.size)
             lat, lon, h = pymap3d.enu2geodetic(e, n, u, lat0, lon0, h0)
-            host = H0 + (g - G0) + 20_000_000 + rng.exponential(2e6, g.size).astype(np.int64)
+            # a BESTPOSB frame is 28 header + 72 body + 4 CRC bytes (OEM7 manual); the host stamps its last byte
+            baud = next((r.baud for r in cfg.receivers if r.name == rx), 115200)
+            tx_ns = round(104 * 10 * 1e9 / baud)
+            host = H0 + (g - G0) + 20_000_000 + tx_ns + rng.exponential(2e6, g.size).astype(np.int64)
             spd = np.hypot(ve, vn)
             trk = np.degrees(np.arctan2(ve, vn)) % 360.0
             for i in range(g.size):
