@@ -31,6 +31,14 @@ Three methods (the result says which in ``method``):
 
   β = ν − ψ with variance σ_ν² + σ_ψ² (the channels see independent measurement errors).
 
+Before any method: the delay of the IMU time stamps behind the GNSS epochs (sensor filter and CAN
+output latency, ≈ 17 ms on the simulated cluster) is estimated from the gyro-integrated yaw against
+the GNSS yaw and removed, and the GNSS noise is measured on the session (heading from the scatter of
+the baseline length, with its Gauss–Markov/white split; velocity from second differences), unless
+``imu_delay_s`` / ``noise_from_data=False`` say otherwise. Not modelled: the lateral velocity that
+body roll gives a roof antenna (height × roll rate; no roll rate on CAN), which dominates the
+remaining error in quick transients (double lane change, J-turn).
+
 Optical reference: :func:`optical_sideslip` moves a (zero-corrected) Correvit velocity to the CG;
 :func:`cross_check` flags where two references disagree beyond their combined uncertainty.
 """
@@ -40,7 +48,7 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -460,6 +468,145 @@ def _increments(
     return inc, covered
 
 
+@dataclass(frozen=True, slots=True)
+class _NoiseEstimate:
+    """GNSS noise measured on the session itself (see :func:`_noise_from_data`)."""
+
+    heading_sigma_rad: float
+    gm_share: float
+    tau_s: float
+    velocity_sigma_mps: float
+    n_baseline: int
+
+    def to_dict(self) -> dict[str, float]:
+        return {
+            "data_heading_sigma_deg": math.degrees(self.heading_sigma_rad),
+            "data_heading_gm_share": self.gm_share,
+            "data_heading_tau_s": self.tau_s,
+            "data_velocity_sigma_mps": self.velocity_sigma_mps,
+            "data_n_baseline": float(self.n_baseline),
+        }
+
+
+def _robust_std(x: FloatArray) -> float:
+    return _MAD_TO_SIGMA * float(np.median(np.abs(x - np.median(x)))) if x.size else math.nan
+
+
+_MAD_TO_SIGMA = 1.482602218505602
+_MIN_NOISE_SAMPLES = 40
+
+
+def _noise_from_data(gnss: GnssEpochs, ok: BoolArray, baseline_m: float) -> _NoiseEstimate | None:
+    """Heading and velocity noise from the session (None: too few usable epochs).
+
+    - Heading: the relative position error of B → A along the baseline shows in the measured
+      length, the one across it in the azimuth; both have the same statistics (the relative
+      error is isotropic in the horizontal plane), so σ_ψ = σ(length)/L, robustly (MAD). The
+      split into a first-order Gauss–Markov share a (correlation φ per epoch) and white noise
+      comes from the lag-1 and lag-2 autocorrelations of the length: ρ1 = a·φ, ρ2 = a·φ².
+    - Velocity (per axis): white Doppler noise of σ gives second differences of σ·√6 while a
+      car's velocity at 10–20 Hz is smooth on that scale; pooled over east and north, robustly.
+    """
+    t = gnss.t
+    if t.size < _MIN_NOISE_SAMPLES:
+        return None
+    length = gnss.baseline_length
+    m = ok & np.isfinite(length)
+    if np.count_nonzero(m) < _MIN_NOISE_SAMPLES:
+        return None
+    period = float(np.median(np.diff(t)))
+    resid = np.where(m, length - np.median(length[m]), np.nan)
+    sig = _robust_std(resid[m])
+    # reject outliers (a ±4σ window) before the autocorrelations
+    use = m & (np.abs(np.nan_to_num(resid, nan=np.inf)) <= 4.0 * max(sig, 1e-9))
+    e = np.where(use, resid - np.mean(resid[use]), np.nan)
+    c0 = float(np.nanmean(e * e))
+    rho = []
+    for lag in (1, 2):
+        prod = e[lag:] * e[:-lag]
+        # only pairs one (two) nominal periods apart
+        same = np.abs(t[lag:] - t[:-lag] - lag * period) < 0.25 * period
+        pr = prod[same & np.isfinite(prod)]
+        rho.append(float(np.mean(pr)) / c0 if pr.size >= _MIN_NOISE_SAMPLES and c0 > 0.0 else 0.0)
+    r1, r2 = rho
+    if r1 > 0.05 and r2 > 0.0:
+        phi = float(np.clip(r2 / r1, 0.05, 0.999))
+        share = float(np.clip(r1 / phi, 0.0, 1.0))
+    else:
+        phi, share = 0.05, 0.0
+    tau = -period / math.log(phi)
+    # velocity
+    ve, vn = gnss.velocity_east, gnss.velocity_north
+    d2 = []
+    for v in (ve, vn):
+        dd = v[2:] - 2.0 * v[1:-1] + v[:-2]
+        even = np.abs(t[2:] - t[:-2] - 2.0 * period) < 0.25 * period
+        dd = dd[even & ok[1:-1] & np.isfinite(dd)]
+        d2.append(dd)
+    dv = np.concatenate(d2)
+    sig_v = _robust_std(dv) / math.sqrt(6.0) if dv.size >= _MIN_NOISE_SAMPLES else math.nan
+    return _NoiseEstimate(sig / baseline_m, share, tau, sig_v, int(np.count_nonzero(m)))
+
+
+_DELAY_LAG_S = 0.5
+_MAX_DELAY_S = 0.25
+
+
+def _estimate_imu_delay(
+    gnss: GnssEpochs, imu: ImuSeries, geometry: AntennaGeometry, ok: BoolArray, max_gap_s: float
+) -> tuple[float, float]:
+    """Delay d (s) of the IMU time stamps behind the GNSS epochs, and its standard error.
+
+    If the yaw rate is stamped d late, the gyro-integrated yaw θ lags the GNSS yaw ψ by r·d, so
+    over a lag L: (ψ − θ)(t+L) − (ψ − θ)(t) = d·(r(t+L) − r(t)) + b·L + noise (b the gyro bias).
+    Least squares over all pairs of valid epochs L apart; d = 0 when the drive does not excite it
+    (standard error above 20 ms) or the fit is outside ±0.25 s.
+    """
+    t = gnss.t
+    m = ok & np.isfinite(gnss.baseline_azimuth)
+    if np.count_nonzero(m) < _MIN_NOISE_SAMPLES or t.size < 3:
+        return 0.0, math.nan
+    d_theta, covered = _increments(imu.t, imu.yaw_rate, t, max_gap_s)
+    theta = np.concatenate(([0.0], np.cumsum(d_theta)))
+    cov_cum = np.concatenate(([0], np.cumsum(~covered)))
+    r_ep, r_ok = _at_epochs(imu.t, imu.yaw_rate, t, max_gap_s)
+    psi = np.asarray(azimuth_to_yaw(gnss.baseline_azimuth), dtype=float)
+    e = np.full(t.size, np.nan)
+    mm = m & r_ok
+    if np.count_nonzero(mm) < _MIN_NOISE_SAMPLES:
+        return 0.0, math.nan
+    e[mm] = theta[mm] + unwrap(np.asarray(wrap_pi(psi[mm] - theta[mm]), dtype=float)) - theta[mm]
+    period = float(np.median(np.diff(t)))
+    lag = max(1, round(_DELAY_LAG_S / period))
+    if t.size <= lag:
+        return 0.0, math.nan
+    de = e[lag:] - e[:-lag]
+    dr = r_ep[lag:] - r_ep[:-lag]
+    dt = t[lag:] - t[:-lag]
+    good = np.isfinite(de) & np.isfinite(dr) & (cov_cum[lag:] == cov_cum[:-lag]) & (np.abs(dt - lag * period) < period)
+    if np.count_nonzero(good) < _MIN_NOISE_SAMPLES:
+        return 0.0, math.nan
+    a = np.column_stack((dr[good], dt[good]))
+    y = de[good]
+    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+    res = y - a @ coef
+    # overlapping pairs are correlated over the lag: count lag-independent pairs only
+    n_eff = max(float(np.count_nonzero(good)) / lag, 2.0)
+    try:
+        cov = np.linalg.inv(a.T @ a) * float(np.mean(res * res)) * lag
+    except np.linalg.LinAlgError:
+        return 0.0, math.nan
+    se = math.sqrt(max(float(cov[0, 0]), 0.0))
+    d = float(coef[0])
+    if n_eff < 10.0 or not math.isfinite(se) or se > 0.02 or abs(d) > _MAX_DELAY_S:
+        return 0.0, se
+    # below a quarter of the IMU sample period the trapezoid integration itself is that uncertain
+    imu_period = float(np.median(np.diff(imu.t)))
+    if abs(d) < max(3.0 * se, 0.25 * imu_period):
+        return 0.0, se
+    return d, se
+
+
 # --------------------------------------------------------------------------------------------
 # GNSS reference
 # --------------------------------------------------------------------------------------------
@@ -477,8 +624,18 @@ def reference_sideslip(
     min_speed_mps: float = 10.0 / 3.6,
     max_imu_gap_s: float = 0.1,
     coverage_factor: float = 2.0,
+    imu_delay_s: float | None = None,
+    noise_from_data: bool = True,
 ) -> ReferenceSideslip:
     """Reference sideslip at the CG (and at ``points``) from dual-antenna GNSS and the yaw rate.
+
+    ``imu_delay_s``: how much later the IMU (CAN sensor cluster) time stamps are than the motion
+    they describe (sensor filter and CAN output latency); None estimates it from the data
+    (:func:`_estimate_imu_delay`), 0 takes the stamps as they are. ``noise_from_data``: the
+    GNSS noise comes from the session itself (:func:`_noise_from_data`: heading noise from the
+    scatter of the measured baseline length, velocity noise from the high-frequency scatter of
+    the velocity) instead of ``gnss_spec`` and the receiver-reported σ; ``gnss_spec`` stays the
+    fallback where the data are too few.
 
     Raises:
         AnalysisError: bad arrays, an unknown method, or no valid epoch at all.
@@ -517,24 +674,55 @@ def reference_sideslip(
     if not np.any(valid):
         raise AnalysisError(f"reference sideslip: no valid epoch among {n} ({_reason_text(reasons)})")
 
+    diagnostics: dict[str, float] = {}
+    heading_ok = valid | (reasons == int(InvalidReason.LOW_SPEED))
+    if imu_delay_s is None:
+        delay, delay_se = _estimate_imu_delay(gnss, imu, geometry, heading_ok, max_imu_gap_s)
+    else:
+        delay, delay_se = float(imu_delay_s), math.nan
+    diagnostics["imu_delay_s"] = delay
+    diagnostics["imu_delay_se_s"] = delay_se
+    if delay != 0.0:
+        # the IMU samples describe the motion ``delay`` before their time stamps
+        imu = ImuSeries(imu.t - delay, imu.yaw_rate, imu.ay)
+        r_ep, r_ok = _at_epochs(imu.t, imu.yaw_rate, t, max_imu_gap_s)
+        bad_r = ~r_ok & ((reasons & np.uint8(InvalidReason.NO_YAW_RATE)) == 0)
+        reasons[bad_r] |= np.uint8(InvalidReason.NO_YAW_RATE)
+        reasons[r_ok] &= np.uint8(~int(InvalidReason.NO_YAW_RATE) & 0xFF)
+        valid = reasons == 0
+        if not np.any(valid):
+            raise AnalysisError(f"reference sideslip: no valid epoch among {n} ({_reason_text(reasons)})")
+
     # position σ per antenna per axis → heading σ (cross-baseline components of both errors)
     # (receiver-reported σ, when given, describe each antenna alone: scale them to the relative part)
-    rel = gspec.baseline_sigma_m / gspec.position_sigma_m if gspec.position_sigma_m > 0 else 1.0
-    sp_a = gnss.position_sigma_a * rel if gnss.position_sigma_a is not None else np.full(n, gspec.baseline_sigma_m)
-    sp_b = gnss.position_sigma_b * rel if gnss.position_sigma_b is not None else np.full(n, gspec.baseline_sigma_m)
-    sig_heading = np.sqrt(sp_a**2 + sp_b**2) / geometry.baseline_length_m
+    est = _noise_from_data(gnss, heading_ok, geometry.baseline_length_m) if noise_from_data else None
+    gm_share = 1.0
+    if est is not None:
+        sig_heading = np.full(n, est.heading_sigma_rad)
+        gm_share = est.gm_share
+        gspec = replace(gspec, relative_tau_s=est.tau_s, heading_white_sigma_rad=gspec.heading_white_sigma_rad,
+                        velocity_sigma_mps=est.velocity_sigma_mps if math.isfinite(est.velocity_sigma_mps)
+                        else gspec.velocity_sigma_mps)
+        diagnostics.update(est.to_dict())
+    else:
+        rel = gspec.baseline_sigma_m / gspec.position_sigma_m if gspec.position_sigma_m > 0 else 1.0
+        sp_a = (gnss.position_sigma_a * rel if gnss.position_sigma_a is not None
+                else np.full(n, gspec.baseline_sigma_m))
+        sp_b = (gnss.position_sigma_b * rel if gnss.position_sigma_b is not None
+                else np.full(n, gspec.baseline_sigma_m))
+        sig_heading = np.sqrt(sp_a**2 + sp_b**2) / geometry.baseline_length_m
     with np.errstate(divide="ignore", invalid="ignore"):
         sig_course = gspec.velocity_sigma_mps / speed_a
 
     # raw β at A and at the CG
     beta_a = np.asarray(sideslip_from_azimuths(heading_az, course_az), dtype=float)
     vx_a, vy_a = speed_a * np.cos(beta_a), speed_a * np.sin(beta_a)
-    diagnostics: dict[str, float] = {}
 
     if meth is ReferenceMethod.RTS:
-        beta_cg, sigma, r_used, psi, speed_cg, diagnostics = _rts_reference(
-            gnss, imu, geometry, gspec, ispec, reasons, speed_a, r_ep, sig_heading, max_imu_gap_s
+        beta_cg, sigma, r_used, psi, speed_cg, rts_diag = _rts_reference(
+            gnss, imu, geometry, gspec, ispec, reasons, speed_a, r_ep, sig_heading, max_imu_gap_s, gm_share
         )
+        diagnostics.update(rts_diag)
         heading_out = np.asarray(yaw_to_azimuth(psi), dtype=float)
     else:
         vx_cg, vy_cg = transfer_velocity(vx_a, vy_a, r_ep, geometry.a_xy, (0.0, 0.0))
@@ -555,7 +743,7 @@ def reference_sideslip(
             beta_cg = wres.x
             # segments too short to denoise keep their raw value and raw uncertainty
             sigma = np.where(np.isfinite(wres.sigma), wres.sigma, sig_raw)
-            diagnostics = {"noise_sigma_deg": math.degrees(wres.noise_sigma), "level": float(wres.level)}
+            diagnostics.update({"noise_sigma_deg": math.degrees(wres.noise_sigma), "level": float(wres.level)})
 
     beta_cg = np.where(valid, beta_cg, np.nan)
     sigma = np.where(valid, sigma, np.nan)
@@ -601,6 +789,7 @@ def _rts_reference(
     r_ep: FloatArray,
     sig_heading: FloatArray,
     max_gap_s: float,
+    gm_share: float = 1.0,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, dict[str, float]]:
     """The two-channel smoother (module docstring). Returns β, σ, r̂, ψ̂, V_cg at the epochs, diagnostics."""
     t = gnss.t
@@ -621,10 +810,12 @@ def _rts_reference(
         z_h[h_ok] = theta[h_ok] + unwrap(resid)
     tau = max(gspec.baseline_tau_s, 1e-6)
     phi_e = np.exp(-dt / tau)
-    finite_sig = sig_heading[np.isfinite(sig_heading)]
-    sig_e_default = math.sqrt(2.0) * gspec.baseline_sigma_m / geometry.baseline_length_m
+    # the heading error: a Gauss–Markov share (state e_ψ) and a white share (measurement noise)
+    sig_gm = sig_heading * math.sqrt(gm_share)
+    finite_sig = sig_gm[np.isfinite(sig_gm)]
+    sig_e_default = math.sqrt(2.0 * gm_share) * gspec.baseline_sigma_m / geometry.baseline_length_m
     sig_e = float(np.median(finite_sig)) if finite_sig.size else sig_e_default
-    sig_e_step = np.where(np.isfinite(sig_heading[1:]), sig_heading[1:], sig_e)
+    sig_e_step = np.where(np.isfinite(sig_gm[1:]), sig_gm[1:], sig_e)
     q_h = np.empty((n - 1, 3))
     big = (2.0 * dt) ** 2  # an uncovered interval: up to 2 rad/s of unknown rotation
     q_h[:, 0] = np.where(
@@ -638,8 +829,9 @@ def _rts_reference(
     x0_psi = float(z_h[first]) if np.any(h_ok) else 0.0
     # the prior on ψ at epoch 0 is diffuse; referred to epoch 0 through the gyro increments
     x0_psi -= float(theta[first])
-    sig_e0 = float(sig_heading[first]) if np.isfinite(sig_heading[first]) else float(sig_e)
-    r_h = np.full(n, gspec.heading_white_sigma_rad**2)
+    sig_e0 = float(sig_gm[first]) if np.isfinite(sig_gm[first]) else float(sig_e)
+    white_h = np.where(np.isfinite(sig_heading), sig_heading, 0.0) ** 2 * (1.0 - gm_share)
+    r_h = white_h + gspec.heading_white_sigma_rad**2
     res_h = rts_smooth3(
         f01=-dt,
         f02=np.zeros(n - 1),
