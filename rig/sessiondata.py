@@ -40,7 +40,8 @@ API (stable; other commands import it)::
     inp.calibration_sources: tuple[str, ...]     where the calibration in force came from
     inp.events: tuple[EventRecord, ...]; inp.marks (operator marks only)
     inp.streams: {stream: StreamInfo}  per-stream samples, valid fraction, span, note
-    inp.missing: {"gnss"|"can"|"optical"|"truth": reason}; inp.warnings: tuple[str, ...]
+    inp.missing: {"gnss"|"can"|"optical"|"truth": reason}; inp.warnings: tuple[str, ...] (live: the
+                              dataset's warnings added later, e.g. by inp.session.daq(...), show up)
     inp.session: the underlying rig.dataset.Session (raw access: DAQ, frames, …)
 
 The baseline azimuth and length are resolved per epoch in the local east/north/up frame at
@@ -334,9 +335,17 @@ class SessionInputs:
     events: tuple[EventRecord, ...]
     streams: Mapping[str, StreamInfo]
     missing: Mapping[str, str]
-    warnings: tuple[str, ...]
+    load_warnings: tuple[str, ...]
+    """Warnings of :func:`load_inputs` itself (profile, GNSS pairing, CAN, optical)."""
     imu_corrected: bool
     session: Session = field(repr=False, compare=False)
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """Every warning so far, a live view: the dataset's (:attr:`Session.warnings`, which grows as
+        its accessors run — a DAQ segment falling back to the host clock, a log latency that could not
+        be measured — also after loading), then the loader's own; duplicates removed."""
+        return tuple(dict.fromkeys((*self.session.warnings, *self.load_warnings)))
 
     @property
     def is_simulated(self) -> bool:
@@ -771,7 +780,7 @@ def load_inputs(
         ConfigError: a bad ``imu_calibration`` or calibration file content.
     """
     session = load_session(path, gnss_min_latency_s=gnss_min_latency_s)
-    warnings: list[str] = list(session.warnings)
+    warnings: list[str] = []  # the loader's own; the dataset's are read live (SessionInputs.warnings)
     missing: dict[str, str] = {}
     streams: dict[str, StreamInfo] = {}
     spath = Path(path)
@@ -889,8 +898,8 @@ def load_inputs(
     return SessionInputs(
         path=spath, name=name, t0_ns=t0, gnss=gnss, can=signals, optical=optical_out, truth=truth_out,
         simulation=simulation, profile=prof, recorded_calibration=recorded_cal, calibration_sources=tuple(sources),
-        events=tuple(events), streams=streams, missing=missing, warnings=tuple(warnings), imu_corrected=imu_done,
-        session=session,
+        events=tuple(events), streams=streams, missing=missing, load_warnings=tuple(dict.fromkeys(warnings)),
+        imu_corrected=imu_done, session=session,
     )
 
 

@@ -16,14 +16,23 @@ import json
 import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from rig.analysis.reference import ReferenceMethod
-from rig.analysis.steering import SteeringModel, error_table
 from vsccore.errors import ConfigError, SessionFileError
+
+
+class ReferenceChoice(StrEnum):
+    """``--method``: the values of :class:`rig.analysis.reference.ReferenceMethod` (a test keeps them equal;
+    the analysis modules, which pull in scipy, are imported by the commands, so ``rig --help`` stays fast)."""
+
+    RAW = "raw"
+    WAVELET = "wavelet"
+    RTS = "rts"
+
 
 steering_app = typer.Typer(help="Steering-angle reconstruction from GNSS speed and lateral acceleration.",
                            no_args_is_help=True)
@@ -74,6 +83,8 @@ def error_model_cmd(
     plot: Annotated[Path | None, typer.Option("--plot", help="Write a plot of γ(v) to this PNG file.")] = None,
 ) -> None:
     """Relative error γ = 1 − l(1 + g·k_φ)/(l + K·v²) of the kinematic road-wheel angle a_y·l/v² over speed."""
+    from rig.analysis.steering import SteeringModel, error_table
+
     try:
         model = SteeringModel.from_degrees_per_g(
             wheelbase_m=wheelbase, mass_kg=mass, front_axle_load_share=front_axle_load_share,
@@ -163,19 +174,20 @@ def validate(
     ] = None,
     json_file: Annotated[Path | None, typer.Option("--json", help="Write the metrics as JSON to FILE.")] = None,
     method: Annotated[
-        ReferenceMethod, typer.Option("--method", help="Reference sideslip noise treatment.", case_sensitive=False)
-    ] = ReferenceMethod.RTS,
+        ReferenceChoice, typer.Option("--method", help="Reference sideslip noise treatment.", case_sensitive=False)
+    ] = ReferenceChoice.RTS,
     no_progress: Annotated[bool, typer.Option("--no-progress", help="No progress bar.")] = False,
 ) -> None:
     """Score the VSC sideslip estimate of SESSION against the GNSS (and optical) reference.
 
     Exit status: 0 PASS, 1 FAIL (the configured [validation] tolerances), 2 error.
     """
+    from rig.analysis.reference import ReferenceMethod
     from rig.report import write_metrics_csv, write_validation_report
     from rig.validate import validate_session, validation_lines
 
     with _progress(not no_progress, 7) as step:
-        sv = validate_session(session, estimator=estimator, method=method, progress=step)
+        sv = validate_session(session, estimator=estimator, method=ReferenceMethod(method.value), progress=step)
         if report is not None:
             step("report")
             files = write_validation_report(sv, report)

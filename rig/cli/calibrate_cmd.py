@@ -15,26 +15,6 @@ from typing import Annotated, Any
 
 import typer
 
-from calibration.steering import manual_ratio_from_chords, manual_ratio_from_diameter
-from rig.calibrate import (
-    BaselineOptions,
-    SteeringOptions,
-    baseline_record,
-    calibrate_baseline,
-    calibrate_imu,
-    calibrate_steering_ratio,
-    format_baseline,
-    format_imu,
-    format_steering,
-    optical_record,
-    plot_baseline,
-    plot_steering,
-    read_accel_csv,
-    read_gyro_csv,
-    steering_record,
-    write_profile_calibration,
-)
-from rig.sessiondata import load_inputs, update_calibration_file
 from vsccore.errors import ConfigError
 
 _SESSION_HELP = "A session part (NAME.NNN.mcap), the session base path (DIR/NAME) or a directory holding one session."
@@ -93,6 +73,17 @@ def calibrate_baseline_cmd(
     slip-angle zero from the same runs. The result is recorded in <session>.calibration.json (later
     commands use it) unless --no-record; --write PROFILE puts it into the vehicle profile.
     """
+    from rig.calibrate import (
+        BaselineOptions,
+        baseline_record,
+        calibrate_baseline,
+        format_baseline,
+        optical_record,
+        plot_baseline,
+        write_profile_calibration,
+    )
+    from rig.sessiondata import load_inputs, update_calibration_file
+
     opts = BaselineOptions(min_speed_kmh=min_speed_kmh, min_duration_s=min_duration_s,
                            max_yaw_rate_dps=max_yaw_rate_dps, max_course_std_deg=max_course_std_deg,
                            length_tolerance_m=length_tolerance_m)
@@ -136,7 +127,7 @@ def calibrate_steering_ratio_cmd(
     max_speed_kmh: Annotated[float, typer.Option("--max-speed-kmh", help="Circles: maximum speed (km/h).")] = 15.0,
     max_swa_spread_deg: Annotated[float, typer.Option("--max-swa-spread-deg", help="Circles: steering-wheel angle "
                                                       "peak-to-peak within a circle (°).")] = 2.0,
-    min_arc_deg: Annotated[float, typer.Option("--min-arc-deg", help="Circles: minimum angle driven (°).")] = 90.0,
+    min_arc_deg: Annotated[float, typer.Option("--min-arc-deg", help="Circles: minimum angle driven (°).")] = 60.0,
     no_record: Annotated[bool, typer.Option("--no-record", help="Do not record the result next to the session.")]
     = False,
 ) -> None:
@@ -147,6 +138,9 @@ def calibrate_steering_ratio_cmd(
     and the lever arms, fits a circle (least squares), and converts its radius R to the road-wheel
     angle δ = atan(L/R).
     """
+    from rig.calibrate import SteeringOptions, calibrate_steering_ratio, format_steering, plot_steering, steering_record
+    from rig.sessiondata import load_inputs, update_calibration_file
+
     opts = SteeringOptions(max_speed_kmh=max_speed_kmh, max_swa_spread_deg=max_swa_spread_deg,
                            min_arc_deg=min_arc_deg)
     inputs = load_inputs(session, optical=False)
@@ -191,6 +185,8 @@ def steering_ratio_manual(
     Three points on the inner rear wheel's track (circumradius R = abc / 4S, S from Heron's formula)
     or a half circle (R = D/2); the rear-axle centre's radius is R + track/2 and δ = atan(L / R).
     """
+    from calibration.steering import manual_ratio_from_chords, manual_ratio_from_diameter
+
     if (chords is None) == (diameter is None):
         raise ConfigError("rig steering-ratio manual: give either --chords A B C or --diameter D")
     swa = math.radians(swa_deg)
@@ -236,6 +232,9 @@ def calibrate_imu_cmd(
     comments. The result corrects the recorded CAN yaw_rate (gyro z), lat_accel (accel y) and
     long_accel (accel x) per axis.
     """
+    from rig.calibrate import calibrate_imu, format_imu, read_accel_csv, read_gyro_csv, write_profile_calibration
+    from rig.sessiondata import update_calibration_file
+
     positions = read_accel_csv(accel) if accel is not None else None
     runs = read_gyro_csv(gyro) if gyro is not None else None
     src = ", ".join(str(p) for p in (accel, gyro) if p is not None)

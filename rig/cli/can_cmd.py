@@ -31,18 +31,17 @@ from contextlib import ExitStack
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
-from typing import IO, Annotated, Any
+from typing import IO, TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
-from cantools.database.can import Database
 
-from drivers.can.checks import CAN_EFF_FLAG, FrameFlag
-from drivers.can.dbc import load_dbc
-from drivers.can.logs import read_log
-from drivers.can.roles import RoleMap
-from drivers.can.vector_decode import BatchDecode, DecodedMessage, RoleBatch, VectorDecoder, VectorRoleDecoder
 from vsccore.errors import ConfigError, SessionFileError
+
+if TYPE_CHECKING:  # the CAN drivers (cantools, python-can) are imported by the commands: ``rig --help`` stays fast
+    from cantools.database.can import Database
+
+    from drivers.can.roles import RoleMap
+    from drivers.can.vector_decode import BatchDecode, DecodedMessage, RoleBatch
 
 app = typer.Typer(
     help="CAN tools: decode logs with a DBC and a role mapping, watch a live bus, run the simulated VSC ECU.",
@@ -84,6 +83,8 @@ def _value_text(v: float) -> str:
 
 
 def _signal_rows(decoded: DecodedMessage) -> Iterator[_Row]:
+    from drivers.can.checks import FrameFlag
+
     names = list(decoded.values)
     values = {n: decoded.values[n].tolist() for n in names}
     present = {n: decoded.present[n].tolist() for n in names}
@@ -107,6 +108,8 @@ def _signal_rows(decoded: DecodedMessage) -> Iterator[_Row]:
 
 
 def _role_rows_for_message(result: RoleBatch, rolemap: RoleMap, message: str) -> Iterator[_Row]:
+    from drivers.can.checks import FrameFlag
+
     decoded = result.messages[message]
     frame_level = int(FrameFlag.frame_level())
     per_role: list[tuple[str, dict[int, int], list[float], list[int], list[Any], Any, str]] = []
@@ -155,10 +158,14 @@ def _merge(streams: list[Iterator[_Row]]) -> Iterator[_Row]:
 
 
 def _flag_text(flags: int) -> str:
+    from drivers.can.checks import FrameFlag
+
     return "|".join(FrameFlag(flags).names())
 
 
 def _write_csv(rows: Iterator[_Row], out: IO[str], name_column: str) -> int:
+    from drivers.can.checks import FrameFlag
+
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(["t_s", "message", name_column, "value", "unit", "label", "flags"])
     count = 0
@@ -184,6 +191,8 @@ def _write_csv(rows: Iterator[_Row], out: IO[str], name_column: str) -> int:
 
 
 def _write_jsonl(rows: Iterator[_Row], out: IO[str]) -> int:
+    from drivers.can.checks import FrameFlag
+
     count = 0
     for row in rows:
         record = {
@@ -216,6 +225,9 @@ def _dbc_beside(roles: Path, named: str) -> Path:
 
 def _load_roles(roles: Path, dbc: Path | None, bus: str | None) -> tuple[Database, RoleMap]:
     """A roles file (``[roles.*]``) or a session configuration (``[[can]]`` with roles)."""
+    from drivers.can.dbc import load_dbc
+    from drivers.can.roles import RoleMap
+
     try:
         doc = tomllib.loads(roles.read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -265,6 +277,10 @@ def decode(
     out: Annotated[Path | None, typer.Option("--out", help="Output file (default: standard output).")] = None,
 ) -> None:
     """Decode LOG with a DBC: every signal (DBC units), or with --roles the mapped roles in SI units."""
+    from drivers.can.dbc import load_dbc
+    from drivers.can.logs import read_log
+    from drivers.can.vector_decode import VectorDecoder, VectorRoleDecoder
+
     rolemap: RoleMap | None = None
     if roles is not None:
         db, rolemap = _load_roles(roles, dbc, bus)
@@ -299,12 +315,18 @@ def decode(
 
 def _id_text(key: int) -> str:
     """``0x123`` for a base frame, ``0x18FEF100x`` for an extended one (frame key with CAN_EFF_FLAG)."""
+    from drivers.can.checks import CAN_EFF_FLAG
+
     if key & CAN_EFF_FLAG:
         return f"0x{key & 0x1FFFFFFF:08X}x"
     return f"0x{key:X}"
 
 
 def _summary(log: Path, frames: int, written: int, result: BatchDecode | RoleBatch, skipped: int) -> None:
+    import numpy as np
+
+    from drivers.can.checks import FrameFlag
+
     flagged: dict[str, int] = {}
     for decoded in result.messages.values():
         for value, count in zip(*np.unique(decoded.flags, return_counts=True), strict=True):
@@ -351,6 +373,7 @@ def monitor(
     import time
 
     from drivers.can.bus import BusEvent, BusStats, CanBusConfig, CanBusSession, CanFrame, CanFrameFlag
+    from drivers.can.checks import FrameFlag
     from drivers.can.roles import RoleDecoder
     from vsccore.clock import SystemClock
 

@@ -7,8 +7,6 @@ from typing import Annotated
 
 import typer
 
-from rig.config import SessionConfig, check_file
-
 app = typer.Typer(help="Validate session configurations and vehicle profiles.", no_args_is_help=True)
 
 
@@ -17,6 +15,8 @@ def check(
     file: Annotated[Path, typer.Argument(help="A session configuration or vehicle profile (TOML).")],
 ) -> None:
     """Validate FILE and report every problem with its key path and line."""
+    from rig.config import SessionConfig, check_file
+
     cfg = check_file(file)
     if isinstance(cfg, SessionConfig):
         prof = cfg.profile

@@ -7,8 +7,6 @@ from typing import Annotated
 
 import typer
 
-from rig.demo import run_demo
-
 
 def demo(
     out: Annotated[Path, typer.Option("--out", help="Folder for everything the demo writes.")] = Path("demo-out"),
@@ -18,6 +16,8 @@ def demo(
     ] = None,
 ) -> None:
     """Simulate a test day with simulated devices, then show what each stage produced."""
+    from rig.demo import run_demo
+
     result = run_demo(out, fast=fast, config=config)
     for stage in result.stages:
         typer.echo(f"[{stage.name}] {stage.summary} ({stage.seconds:.1f} s)")

@@ -28,30 +28,33 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Annotated, Any
+from typing import IO, TYPE_CHECKING, Annotated, Any
 
 import typer
-from rich.console import Console
-from rich.live import Live
-from rich.table import Table
 
-from drivers.novatel import BestPos, BestVel, Framer, FrameReader, FramerStats, frame_to_dict
-from drivers.novatel.commands import LogRequest, LogTrigger, standard_configuration, unlogall_command
-from drivers.novatel.receiver import (
-    NovatelReceiver,
-    ReceivedChunk,
-    ReceiverEvent,
-    ReceiverEventKind,
-    ReceiverHealth,
-    ReceiverSettings,
-)
 from vsccore.errors import ConfigError, DeviceError, EncodeError, SessionFileError
+
+if TYPE_CHECKING:  # the NovAtel driver and rich are imported where used: ``rig --help`` stays fast
+    from rich.console import Console
+    from rich.table import Table
+
+    from drivers.novatel import BestPos, BestVel, FramerStats
+    from drivers.novatel.commands import LogRequest
+    from drivers.novatel.receiver import (
+        NovatelReceiver,
+        ReceivedChunk,
+        ReceiverEvent,
+        ReceiverHealth,
+        ReceiverSettings,
+    )
 
 app = typer.Typer(help="GNSS receivers (NovAtel): decode raw captures, watch a live receiver.", no_args_is_help=True)
 
 
 def decode_capture(source: IO[bytes], out: IO[str], *, summary_only: bool = False) -> FramerStats:
     """Write one JSON line per frame of ``source`` to ``out`` and then the summary line."""
+    from drivers.novatel import Framer, FrameReader, frame_to_dict
+
     reader = FrameReader(source, framer=Framer())
     dumps = json.dumps
     for frame in reader:
@@ -100,14 +103,8 @@ _MPS_TO_KMH = 3.6
 
 #: Events whose message becomes the view's "last error" (CONFIGURATION_FAILED only sums up the
 #: COMMAND_FAILED events before it, which name the command; it shows in the connection state).
-_ERROR_EVENTS = frozenset(
-    {
-        ReceiverEventKind.CONNECT_FAILED,
-        ReceiverEventKind.COMMAND_FAILED,
-        ReceiverEventKind.DISCONNECTED,
-        ReceiverEventKind.CALLBACK_FAILED,
-    }
-)
+_ERROR_EVENTS = frozenset({"CONNECT_FAILED", "COMMAND_FAILED", "DISCONNECTED", "CALLBACK_FAILED"})
+"""Names of the :class:`~drivers.novatel.receiver.ReceiverEventKind` members (the driver is imported lazily)."""
 
 
 def parse_log_option(text: str) -> LogRequest:
@@ -116,6 +113,8 @@ def parse_log_option(text: str) -> LogRequest:
     Raises:
         ConfigError: not of that form (names the option value).
     """
+    from drivers.novatel.commands import LogRequest, LogTrigger
+
     name, sep, when = text.strip().partition("@")
     if not sep or not name or not when:
         raise ConfigError(f"--log {text!r}: expected NAME@PERIOD_S or NAME@TRIGGER, e.g. BESTPOSB@0.05")
@@ -144,6 +143,8 @@ def monitor_commands(logs: list[LogRequest]) -> tuple[str, ...]:
     Raises:
         ConfigError: a log request cannot be sent (names it).
     """
+    from drivers.novatel.commands import standard_configuration, unlogall_command
+
     try:
         return (unlogall_command("THISPORT"), *standard_configuration("THISPORT", logs, unlogall=False))
     except EncodeError as exc:
@@ -192,7 +193,7 @@ class ReceiverMonitor:
         settings: ReceiverSettings,
         *,
         configure: bool = True,
-        receiver_factory: Callable[..., NovatelReceiver] = NovatelReceiver,
+        receiver_factory: Callable[..., NovatelReceiver] | None = None,
     ) -> None:
         self.configure = configure
         self._lock = threading.Lock()
@@ -202,9 +203,16 @@ class ReceiverMonitor:
         self._config_failed = False
         self._started = time.monotonic()
         self._stopped = False
-        self.receiver = receiver_factory(settings, on_data=self._on_data, on_event=self._on_event)
+        factory = receiver_factory
+        if factory is None:
+            from drivers.novatel.receiver import NovatelReceiver
+
+            factory = NovatelReceiver
+        self.receiver = factory(settings, on_data=self._on_data, on_event=self._on_event)
 
     def _on_data(self, chunk: ReceivedChunk) -> None:
+        from drivers.novatel import BestPos, BestVel
+
         position = velocity = None
         for frame in chunk.frames:
             log = frame.log
@@ -222,10 +230,12 @@ class ReceiverMonitor:
                     self._velocity = (chunk.host_ns, velocity)
 
     def _on_event(self, event: ReceiverEvent) -> None:
+        from drivers.novatel.receiver import ReceiverEventKind
+
         if event.kind in (ReceiverEventKind.CONNECTED, ReceiverEventKind.CONFIGURATION_FAILED):
             with self._lock:
                 self._config_failed = event.kind is ReceiverEventKind.CONFIGURATION_FAILED
-        if event.kind in _ERROR_EVENTS:
+        if event.kind.name in _ERROR_EVENTS:
             what = f" ({event.command})" if event.command and event.command not in event.message else ""
             with self._lock:
                 self._error = (event.host_ns, f"{event.kind.value}{what}: {event.message}")
@@ -345,6 +355,8 @@ def monitor_line(view: MonitorView) -> str:
 
 def render_monitor(view: MonitorView) -> Table:
     """The live view (a rich table) of one receiver."""
+    from rich.table import Table
+
     h = view.health
     sol = _solution_texts(view)
     table = Table(title=f"NovAtel receiver {h.receiver} on {h.port}", show_header=False, expand=False)
@@ -385,6 +397,8 @@ def run_monitor(
 
     Returns the last view (taken after the session stopped).
     """
+    from rich.live import Live
+
     stop = stop if stop is not None else threading.Event()
     deadline = None if duration_s is None else time.monotonic() + duration_s
     period = min(interval_s, 0.25) if live else interval_s
@@ -444,6 +458,10 @@ def monitor(
 
     Stops on Ctrl-C or after --duration. On a terminal the view is a table; otherwise one line per --interval.
     """
+    from rich.console import Console
+
+    from drivers.novatel.receiver import ReceiverSettings
+
     requests = [parse_log_option(text) for text in (logs or DEFAULT_MONITOR_LOGS)]
     commands = monitor_commands(requests) if configure else ()
     name = Path(port).name or port

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from rig.export import ExportKind, ExportReport, export_csv, export_raw_gnss
-from rig.inspect import format_info, format_utc, info_to_json, read_session_info
 from vsccore.errors import ConfigError
+
+if TYPE_CHECKING:
+    from rig.export import ExportReport
 
 _FILE_HELP = "A session part (NAME.NNN.mcap), the session base path (DIR/NAME) or a directory holding one session."
 
@@ -26,6 +27,8 @@ def info(
     max_list: Annotated[int, typer.Option("--max-list", help="Longest list of gaps or events in the text.")] = 20,
 ) -> None:
     """Duration, topics with counts and rates, devices, gaps, time-base quality, calibration and events."""
+    from rig.inspect import format_info, info_to_json, read_session_info
+
     if gap_factor <= 1.0 or min_gap_s < 0 or max_list < 0:
         raise ConfigError(f"--gap-factor must be > 1, --min-gap >= 0 and --max-list >= 0 "
                           f"(got {gap_factor}, {min_gap_s}, {max_list})")
@@ -37,6 +40,9 @@ def info(
 
 
 def _print_report(report: ExportReport) -> None:
+    from rig.export import ExportKind
+    from rig.inspect import format_utc
+
     for f in report.files:
         if f.kind is ExportKind.TABLE:
             typer.echo(f"wrote {f.path}  {f.bytes} bytes  {f.records} rows  ({f.source})")
@@ -63,6 +69,8 @@ def export(
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace existing output files.")] = False,
 ) -> None:
     """Get data out of a session for post-processing (RTKLIB convbin/rtkpost, NovAtel tools, spreadsheets)."""
+    from rig.export import ExportKind, export_csv, export_raw_gnss
+
     if raw_gnss is None and csv_dir is None:
         raise ConfigError("rig export: say what to export: --raw-gnss DIR and/or --csv DIR")
     if raw_gnss is not None:

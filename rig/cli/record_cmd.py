@@ -16,15 +16,20 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from rig.config import SessionConfig, load_session, parse_override
-from rig.dashboard import Dashboard
-from rig.session import RecordSession, SessionSummary, summary_lines
-from rig.simworld import FAST_SPEED, SIM_PREFIX, record_simulated
 from vsccore.errors import ConfigError
+
+if TYPE_CHECKING:
+    from rig.config import SessionConfig
+    from rig.dashboard import Dashboard
+    from rig.session import RecordSession, SessionSummary
+
+# the recorder and the simulator are imported by the commands that use them (``rig --help`` stays fast)
+FAST_SPEED = 3.0
+"""``rig.simworld.FAST_SPEED`` (the --fast clock factor; a test keeps the two equal)."""
 
 
 @contextmanager
@@ -53,6 +58,8 @@ def _dashboard(enabled: bool) -> Iterator[Callable[[RecordSession], None]]:
 
     The dashboard starts on the first tick (the session is recording then) and stops on exit.
     """
+    from rig.dashboard import Dashboard
+
     running: list[Dashboard] = []
 
     def tick(session: RecordSession) -> None:
@@ -69,6 +76,8 @@ def _dashboard(enabled: bool) -> Iterator[Callable[[RecordSession], None]]:
 
 
 def _report(summary: SessionSummary, stopped_by: str | None) -> None:
+    from rig.session import summary_lines
+
     for line in summary_lines(summary):
         typer.echo(line, err=True)
     if stopped_by:
@@ -90,6 +99,10 @@ def record(
 ) -> None:
     """Record every device of CONFIG (receivers, correction relay, CAN, DAQ) into one MCAP session file
     until Ctrl-C, SIGTERM or --duration."""
+    from rig.config import load_session
+    from rig.session import RecordSession
+    from rig.simworld import SIM_PREFIX
+
     cfg = load_session(config)
     simulated = [r.name for r in cfg.receivers if r.port.startswith(SIM_PREFIX)]
     if simulated:
@@ -127,6 +140,9 @@ def sim_record(
 ) -> None:
     """Record a simulated session: the simulated car of CONFIG with every device on pseudo-terminals, a
     virtual CAN bus and the simulated DAQ, through the real recording path, until the drive ends."""
+    from rig.config import load_session, parse_override
+    from rig.simworld import FAST_SPEED, record_simulated
+
     overrides = dict(parse_override(item) for item in (set_ or []))
     if drive is not None:
         overrides["simulation.drive"] = drive
@@ -152,6 +168,8 @@ def sim_record(
 
 
 def _check_simulated(cfg: SessionConfig, path: Path) -> None:
+    from rig.simworld import SIM_PREFIX
+
     if cfg.simulation is None:
         raise ConfigError(f"{path}: no [simulation] table; `rig sim record` records a simulated car")
     real = [r.name for r in cfg.receivers if not r.port.startswith(SIM_PREFIX)]

@@ -7,8 +7,6 @@ from typing import Annotated
 
 import typer
 
-from rig.recorder.recover import recover as recover_part
-
 
 def recover(
     file: Annotated[Path, typer.Argument(help="The session part (.mcap) to recover.", exists=True, dir_okay=False)],
@@ -18,6 +16,8 @@ def recover(
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace an existing output file.")] = False,
 ) -> None:
     """Write a finalized, indexed copy of FILE with everything up to its last complete record."""
+    from rig.recorder.recover import recover as recover_part
+
     report = recover_part(file, out, overwrite=overwrite)
     if report.was_finalized:
         typer.echo(f"{file} was already finalized; copied to {report.path} ({report.messages} messages)")

@@ -12,16 +12,19 @@ from __future__ import annotations
 
 import os
 import time
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.console import Console
-from rich.live import Live
-from rich.text import Text
 
-from drivers.relay import Relay, RelayStats, open_sink, open_source
-from drivers.relay.endpoints import DEFAULT_NTRIP_PASSWORD_ENV, DEFAULT_NTRIP_USER_ENV
 from vsccore.errors import ConfigError
+
+if TYPE_CHECKING:
+    from drivers.relay import RelayStats
+
+# drivers.relay and rich are imported by the command (``rig --help`` stays fast); these equal
+# drivers.relay.endpoints.DEFAULT_NTRIP_USER_ENV / _PASSWORD_ENV (a test keeps them equal)
+DEFAULT_NTRIP_USER_ENV = "VSC_RIG_NTRIP_USER"
+DEFAULT_NTRIP_PASSWORD_ENV = "VSC_RIG_NTRIP_PASSWORD"
 
 
 def _parse_gga(text: str | None) -> tuple[float, float, float] | None:
@@ -98,6 +101,12 @@ def relay(
     """Relay RTK corrections (RTCM3, RTCA, CMR) from a source to rover ports until Ctrl-C, the end of a
     file source, or --duration. SOURCE/SINK: /dev/ttyUSB0[@BAUD], ntrip://user:password@host:port/MOUNT
     (source only), tcp://host:port, file:PATH[@BAUD]."""
+    from rich.console import Console
+    from rich.live import Live
+    from rich.text import Text
+
+    from drivers.relay import Relay, open_sink, open_source
+
     position = _parse_gga(gga)
     src = open_source(
         source,

@@ -11,24 +11,18 @@ from __future__ import annotations
 import difflib
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from rig.config import SessionConfig, check_file
-from sim_devices.vehicle import (
-    COLUMNS,
-    SCENARIOS,
-    TRUTH_FILE_SUFFIXES,
-    Drive,
-    Scenario,
-    VehicleParams,
-    demo_drive,
-    make_scenario,
-    simulate,
-    write_truth,
-)
 from vsccore.errors import ConfigError, SimulationError
+
+if TYPE_CHECKING:
+    from sim_devices.vehicle import Drive, Scenario, VehicleParams
+
+# the simulator is imported by the commands (``rig --help`` stays fast); these are
+# sim_devices.vehicle.TRUTH_FILE_SUFFIXES' keys (a test keeps them equal)
+TRUTH_FILE_SUFFIXES = (".csv", ".parquet", ".pq")
 
 app = typer.Typer(help="Vehicle-dynamics simulator: scenarios and their ground truth.", no_args_is_help=True)
 
@@ -52,6 +46,8 @@ def parse_params(items: list[str], scenario: str) -> dict[str, str]:
 
 def build_drive(scenario: str, params: dict[str, str]) -> Drive | Scenario:
     """The scenario (or the demo drive) to simulate; raises SimulationError with a did-you-mean hint."""
+    from sim_devices.vehicle import SCENARIOS, demo_drive, make_scenario
+
     if scenario == DEMO:
         if params:
             raise SimulationError(f"scenario {DEMO!r} takes no --param (got {', '.join(params)})")
@@ -67,6 +63,9 @@ def build_drive(scenario: str, params: dict[str, str]) -> Drive | Scenario:
 
 def load_vehicle(path: Path) -> VehicleParams:
     """Vehicle parameters from a vehicle profile or a session configuration (its ``[vehicle]``)."""
+    from rig.config import SessionConfig, check_file
+    from sim_devices.vehicle import VehicleParams
+
     cfg = check_file(path)
     vehicle = (cfg.profile if isinstance(cfg, SessionConfig) else cfg).vehicle
     try:
@@ -78,6 +77,8 @@ def load_vehicle(path: Path) -> VehicleParams:
 @app.command("list")
 def list_scenarios() -> None:
     """List the scenarios with their parameters, units and defaults."""
+    from sim_devices.vehicle import COLUMNS, SCENARIOS
+
     for spec in SCENARIOS.values():
         ref = f" [{spec.reference}]" if spec.reference else ""
         typer.echo(f"{spec.name}: {spec.title}{ref}")
@@ -113,6 +114,8 @@ def run(
     rate: Annotated[float, typer.Option("--rate", help="Output rate of the ground truth (Hz).")] = 1000.0,
 ) -> None:
     """Simulate SCENARIO and write its ground truth to --out (CSV or Parquet, unit-suffixed columns)."""
+    from sim_devices.vehicle import VehicleParams, simulate, write_truth
+
     if out.suffix.lower() not in TRUTH_FILE_SUFFIXES:
         raise SimulationError(
             f"--out {out}: unknown output format {out.suffix or '(no ending)'!r}; "
