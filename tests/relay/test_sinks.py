@@ -72,7 +72,9 @@ def test_a_rover_that_stops_reading_does_not_delay_the_other() -> None:
         latency_ms = [(r - s) / 1e6 for s, r in zip(sent, arrival, strict=True)]
         p99 = statistics.quantiles(latency_ms, n=100)[98]
         print(f"B latency median {statistics.median(latency_ms):.2f} ms, p99 {p99:.2f} ms")
-        assert p99 < 100.0, f"B's 99th percentile latency {p99:.1f} ms"  # loaded 2-core CI machine
+        # were B behind A's blocked writes it would get nothing at all (A's pty buffer is full for good);
+        # the bound only absorbs the scheduling delays of a loaded 2-core machine
+        assert p99 < 1000.0, f"B's 99th percentile latency {p99:.1f} ms"
         assert sink_b.drain(5)  # B's worker has counted what it wrote
         stats = relay.stats()
         sa, sb = stats.sinks

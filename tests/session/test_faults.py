@@ -96,7 +96,10 @@ def test_unplugged_devices_come_back_and_the_recording_goes_on(tmp_path: Path) -
     big = np.flatnonzero(step > 20 * MS)
     assert big.size == 1  # one hole, where the cable was out
     assert t0 + 5400 * MS < dev[big[0]] < t0 + 6000 * MS
-    # back after the replug, within the reconnect back-off (2 s real at most, 6 s of simulated time)
-    assert t0 + 6400 * MS < dev[big[0] + 1] < t0 + 12_500 * MS
+    # back within the reconnect back-off (2 s real at most, 6 s of simulated time). Device times are the
+    # ECU's send times: on a loaded machine the ECU thread runs behind the scaled clock and sends a late
+    # burst after the replug, so the hole in device time can be shorter than the 1 s the cable was out.
+    assert dev[big[0] + 1] - dev[big[0]] > 300 * MS
+    assert dev[big[0] + 1] < t0 + 12_500 * MS
     # the rover's and the DAQ's troubles are theirs alone
     assert summary.device_errors.get("rover_a", 0) == 0
