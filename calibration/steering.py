@@ -4,7 +4,9 @@ At low speed tyres hardly slip, so the rear-axle centre moves on a circle of rad
 tan δ = L / R (single-track model: L wheelbase, δ the equivalent front road-wheel angle). The
 steering ratio at a steering-wheel angle SWA is SWA / δ. It varies with SWA (variable-ratio
 racks, Ackermann and linkage geometry) and may differ between forward and reverse, so it is
-measured per SWA and direction.
+measured per SWA and direction. Tyre slip biases the kinematic δ: at 5 km/h the simulated car
+reads ≈ 0.2 % high in ratio driving forward (understeer: δ_kin = δ − K·a_y, K·v²/L ≈ 0.18 %) and
+as much low in reverse, growing to ≈ ±0.5 % near the lock; it grows as v².
 
 Angles are in rad, positive to the left (ISO 8855); GNSS azimuths clockwise from north.
 """

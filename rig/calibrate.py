@@ -493,14 +493,22 @@ def plot_baseline(cal: BaselineCalibration, path: Path) -> Path:
 
 @dataclass(frozen=True, slots=True)
 class SteeringOptions:
-    """Constant-SWA circle criteria."""
+    """Constant-SWA circle criteria.
+
+    A run is a candidate when it lasts ``min_duration_s`` or turns the car through ``min_turn_deg``;
+    its circle is used when it sweeps ``min_arc_deg``. The relative radius error is about the
+    position error divided by the depth (sagitta) of the driven arc, R·(1 − cos(arc/2)): with 1 cm
+    RTK noise a 50° arc of a 5 m circle (sagitta 0.5 m) is off by up to ≈ 1.5 %, 90° and more by a
+    few tenths of a percent (benchmarks/study_steering_ratio.py). Small steering angles need long
+    holds: the radius grows as 1/δ (≈ 85 m at 30° SWA: 110 s for 90° at 5 km/h).
+    """
 
     max_speed_kmh: float = 15.0
     min_speed_kmh: float = 1.0
     max_swa_spread_deg: float = 2.0
-    min_duration_s: float = 10.0
-    min_turn_deg: float = 270.0
-    min_arc_deg: float = 90.0
+    min_duration_s: float = 5.0
+    min_turn_deg: float = 60.0
+    min_arc_deg: float = 60.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -773,18 +773,20 @@ def demo_drive(
     straight_kmh: float = 40.0,
     straight_s: float = 8.0,
     heading_deg: float = 0.0,
-    swa_max_deg: float = 480.0,
-    swa_step_deg: float = 240.0,
-    swa_settle_s: float = 1.5,
-    swa_hold_s: float = 2.5,
+    swa_max_deg: float = 520.0,
+    swa_step_deg: float = 455.0,
+    swa_settle_s: float = 0.5,
+    swa_hold_s: float = 5.3,
     gap_s: float = 3.0,
 ) -> Drive:
-    """A short test day for the demo and CI (about 140 s of driving at the defaults).
+    """A short test day for the demo and CI (about 150 s of driving at the defaults).
 
     In order: a straight run at ``straight_kmh`` on ``heading_deg`` (azimuth) for ``straight_s``;
     constant-SWA circles at 5 km/h forward and in reverse at 0, ±``swa_step_deg``, … ±``swa_max_deg``
-    (five angles at the defaults); the same straight run in the opposite direction; a steady-state
-    circle (R = 20 m, 20 → 40 km/h); an ISO 3888-1 double lane change at 50 km/h; a J-turn at 60 km/h.
+    (0, ±390 and ±520° at the defaults: 5.8 s at each is ≈ 78° of the 5.9 m rear-axle circle at 390°
+    and ≈ 114° of the 4.1 m one at 520°, enough for ``rig calibrate-steering-ratio``; smaller angles
+    need longer holds, the radius grows as 1/δ); the same straight run in the opposite direction; a
+    steady-state circle (R = 20 m, 20 → 40 km/h); an ISO 3888-1 double lane change at 50 km/h; a J-turn at 60 km/h.
     Transitions of at least ``gap_s`` join them. Raises SimulationError for bad values.
     """
     opposite = heading_deg + 180.0 if heading_deg < 180.0 else heading_deg - 180.0

@@ -11,8 +11,11 @@ import pytest
 
 from calibration.segments import Direction
 from rig.calibrate import calibrate_steering_ratio
-from rig.sessiondata import load_inputs, read_calibration_file
-from tests.calib_cli.synth import run_cli
+from rig.config import SessionConfig
+from rig.sessiondata import load_inputs, read_calibration_file, update_calibration_file
+from sim_devices.vehicle import demo_drive
+from tests.calib_cli.conftest import TRUE_OFFSET_DEG
+from tests.calib_cli.synth import run_cli, simulate_truth, write_truth_session
 
 
 def test_ratio_within_one_percent_of_the_simulated_gear(circles_session: Path) -> None:
@@ -28,8 +31,34 @@ def test_ratio_within_one_percent_of_the_simulated_gear(circles_session: Path) -
     # the gear is nonlinear: the ratio falls towards the lock
     fwd = {round(r.swa_deg): r.ratio for r in rows if r.direction is Direction.FORWARD}
     assert fwd[520] < fwd[390] < fwd[260]
-    # ±130° circles are too short an arc at the 12 s hold: skipped with a reason, not guessed
+    # ±130° circles are too short an arc at the 12 s hold (55° of a 19 m circle): skipped with a reason
     assert any("130°" in w and "of the circle driven" in w for w in cal.table.warnings)
+
+
+@pytest.fixture(scope="module")
+def demo_circles_session(tmp_path_factory: pytest.TempPathFactory, sim_cfg: SessionConfig) -> Path:
+    """The steering-ratio circles of ``rig demo`` (demo_drive's defaults: 0, ±455, ±520° at 5 km/h, 5.8 s each,
+    forward and reverse) written from simulator truth with 3 mm GNSS noise, mounting offset calibrated."""
+    circles = next(s for s in demo_drive().scenarios if s.name == "swa_circles")
+    truth = simulate_truth(sim_cfg, circles, rate_hz=50.0)
+    out = tmp_path_factory.mktemp("demo_circles")
+    path = write_truth_session(out, "democircles", sim_cfg, truth, offset_deg=TRUE_OFFSET_DEG, noise_m=0.003,
+                               correlation_s=1.0)
+    update_calibration_file(path, "mount_offset", {"offset_deg": TRUE_OFFSET_DEG, "u95_deg": 0.01,
+                                                   "date": "2025-01-01", "session": "straights"})
+    return path
+
+
+def test_demo_drive_circles_are_found_and_fitted(demo_circles_session: Path) -> None:
+    """With the command's default options every non-zero circle of the demo drive gives a row within 1 %."""
+    cal = calibrate_steering_ratio(load_inputs(demo_circles_session))
+    want = {(d, s) for d in Direction for s in (-520, -455, 455, 520)}
+    assert {(r.direction, round(r.swa_deg)) for r in cal.table.rows} == want
+    for i, r in enumerate(cal.table.rows):
+        assert math.degrees(r.arc_rad) >= 90.0
+        assert r.ratio == pytest.approx(cal.truth_ratio[i], rel=0.01), (r.direction, r.swa_deg)
+    # the straight SWA = 0 holds are named and skipped, not fitted
+    assert cal.table.warnings and all("skipped" in w for w in cal.table.warnings)
 
 
 def test_cli_json_and_plot(circles_session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
