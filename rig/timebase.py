@@ -283,7 +283,9 @@ class ClockEstimator:
     (half-overlapping) and joins the windows into a piecewise-linear :class:`ClockMap`; ``to_ref``
     uses the latest window's line (cached, refitted when a bin closes). ``min_latency_ns`` is a
     known constant part of the latency (e.g. the serial transmission time of a log) that the
-    envelope cannot see; it is subtracted. Thread-safe.
+    envelope cannot see; it is subtracted. A window whose line implies a drift beyond
+    ``max_drift_ppm`` (no quartz clock is that far off; a device that sends a backlog in a burst
+    makes such envelopes) is taken as offset only, at its lowest point. Thread-safe.
     """
 
     def __init__(
@@ -296,6 +298,7 @@ class ClockEstimator:
         min_latency_ns: int = 0,
         recent: int = 4096,
         min_span_s: float = 2.0,
+        max_drift_ppm: float = 2000.0,
     ) -> None:
         if bin_s <= 0 or window_s < 4 * bin_s:
             raise ValueError(f"clock {name}: need bin_s > 0 and window_s >= 4·bin_s, got {bin_s}, {window_s}")
@@ -305,6 +308,7 @@ class ClockEstimator:
         self._window_ns = int(window_s * 1e9)
         self._min_latency = int(min_latency_ns)
         self._min_span_ns = int(min_span_s * 1e9)
+        self._max_drift = max_drift_ppm * 1e-6
         self._lock = threading.Lock()
         self._x0: int | None = None
         self._y_base = 0
@@ -414,8 +418,8 @@ class ClockEstimator:
         if m.sum() == 0:
             m[np.argmin(np.abs(x - 0.5 * (lo + hi)))] = True
         a, b, _ = envelope_line(x[m], y[m])
-        if m.sum() < 3 or np.ptp(x[m]) < self._min_span_ns:
-            # too little span for a drift: offset only, at the lowest point
+        if m.sum() < 3 or np.ptp(x[m]) < self._min_span_ns or abs(b) > self._max_drift:
+            # too little span for a drift, or an implausible one: offset only, at the lowest point
             return float(np.min(y[m])), 0.0
         return a, b
 
