@@ -362,7 +362,7 @@ def calibrate_baseline(inputs: SessionInputs, options: BaselineOptions | None = 
         optical_skipped=skipped,
         truth_offset_deg=float(truth_off) if isinstance(truth_off, int | float) else None,
         truth_optical_zero_deg={str(k): float(v) for k, v in tz.items()} if isinstance(tz, Mapping) else {},
-        warnings=tuple(warnings),
+        warnings=(*warnings, *(f"session: {w}" for w in inputs.warnings)),
         plot_data={"t": g.t_s, "speed": g.speed_mps, "diff": d, "length": g.baseline_length_m,
                    "fixed": fixed.astype(float)},
     )
@@ -589,7 +589,7 @@ def calibrate_steering_ratio(inputs: SessionInputs, options: SteeringOptions | N
                 truth_ratio[i] = float(np.mean(sw) / np.mean(rwa))
     return SteeringCalibration(
         session=inputs.name, table=table, segments=tuple(segs), mount_offset_deg=math.degrees(offset),
-        truth_ratio=truth_ratio, warnings=(),
+        truth_ratio=truth_ratio, warnings=tuple(f"session: {w}" for w in inputs.warnings),
         plot_data={"t": g.t_s, "e": e, "n": n, "swa": swa, "v": v},
     )
 
