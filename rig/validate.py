@@ -380,7 +380,7 @@ def validate_session(
     ant = prof.antennas
     geometry = AntennaGeometry(
         a_xy=ant.a.xy, baseline_length_m=ant.baseline_length_m, baseline_tolerance_m=ant.baseline_tolerance_m,
-        mount_offset_rad=math.radians(prof.calibration.mount_offset_deg),
+        mount_offset_rad=math.radians(prof.calibration.mount_offset_deg), z=ant.a.z_m,
     )
     sm = steering_model(prof)
     v = prof.vehicle
@@ -389,7 +389,7 @@ def validate_session(
     ref = reference_sideslip(
         gnss.to_epochs(), imu, geometry, method=method, points=points, gnss_spec=gnss_spec,
         imu_spec=ImuSpec(roll_gain_rad_per_mps2=sm.roll_gain_rad_per_mps2),
-        min_speed_mps=max(vcfg.min_speed_kmh / 3.6, 0.5),
+        min_speed_mps=max(vcfg.min_speed_kmh / 3.6, 0.5), roll_model=roll_model(v),
     )
     t = ref.t
     yaw = imu.yaw_rate

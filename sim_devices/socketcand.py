@@ -188,6 +188,9 @@ class _Client:
                     if self.closed.is_set():
                         break
         finally:
+            if stop.is_set() and self._rx_thread is not None and self._rx_thread.ident is not None:
+                # the server is stopping: let the frame thread send what the bus still holds first
+                self._rx_thread.join(self.server.join_timeout_s)
             self.close()
             if self._rx_thread is not None and self._rx_thread.ident is not None:
                 self._rx_thread.join(self.server.join_timeout_s)
@@ -285,6 +288,12 @@ class _Client:
             if not self._send(format_frame(msg)):
                 return
             self.frames_out += 1
+        if bus is not None and stop.is_set() and not self.closed.is_set() and self.mode is _Mode.RAW:
+            # a stopping server still delivers the frames its bus had queued: none are lost at the end
+            while (msg := bus.recv(timeout=0.0)) is not None:
+                if not self._send(format_frame(msg)):
+                    return
+                self.frames_out += 1
 
 
 class SocketcandServer:
@@ -380,9 +389,10 @@ class SocketcandServer:
             listener.close()
         with self._lock:
             clients = list(self._clients)
+        # threads see the stop event, send what their bus still holds, then close their socket
+        stuck = [c.peer for c in clients if not c.join(self.join_timeout_s)]
         for client in clients:
             client.close()
-        stuck = [c.peer for c in clients if not c.join(self.join_timeout_s)]
         if thread is not None and thread.is_alive():
             stuck.append("accept")
         if stuck:

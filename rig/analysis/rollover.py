@@ -196,6 +196,44 @@ class RollModel:
         )
         return phi, np.asarray(phidd, dtype=float)
 
+    def roll_and_rate_from_body_ay(
+        self, t_s: npt.ArrayLike, ay_body_mps2: npt.ArrayLike
+    ) -> tuple[FloatArray, FloatArray]:
+        """Roll angle (rad) and roll rate (rad/s) driven by a body-fixed lateral accelerometer.
+
+        The roll rate is the model's own state derivative (transfer function s·m(h − h_r) / (I s² + C s + K),
+        discretised like the angle), not a numerical derivative. Same time-base rules as
+        :meth:`roll_from_body_ay`.
+
+        Raises:
+            AnalysisError: non-uniform or too short time base, or no finite sample.
+        """
+        from scipy import signal
+
+        t = check_time("t_s", t_s, min_samples=2)
+        a = as_1d("ay_body_mps2", ay_body_mps2, t.size)
+        dt = float(np.median(np.diff(t)))
+        if np.max(np.abs(np.diff(t) - dt)) > 0.01 * dt:
+            raise AnalysisError("roll_and_rate_from_body_ay: the time base must be uniform (resample first)")
+        ok = np.isfinite(a)
+        if not np.any(ok):
+            raise AnalysisError("roll_and_rate_from_body_ay: no finite lateral acceleration")
+        idx = np.where(ok, np.arange(a.size), 0)
+        np.maximum.accumulate(idx, out=idx)
+        a = a[idx]
+        if not ok[0]:
+            a[: int(np.argmax(ok))] = a[int(np.argmax(ok))]
+        mh = self.mass_kg * (self.cg_height_m - self.roll_axis_height_m)
+        den_c = [self.roll_inertia_kgm2, self.roll_damping_nms_per_rad, self.roll_stiffness_nm_per_rad]
+        out = []
+        for num_c in ([mh], [mh, 0.0]):
+            num, den, _ = signal.cont2discrete((num_c, den_c), dt, method="bilinear")
+            b = np.asarray(num, dtype=float).ravel()
+            d = np.asarray(den, dtype=float).ravel()
+            zi = signal.lfilter_zi(b, d) * a[0]
+            out.append(np.asarray(signal.lfilter(b, d, a, zi=zi)[0], dtype=float))
+        return out[0], out[1]
+
 
 @dataclass(frozen=True, slots=True)
 class LtrDemandModel:
