@@ -124,7 +124,7 @@ def run_demo(out_dir: Path, *, fast: bool = False, config: Path | None = None) -
     return result
 
 
-DEMO_FAST_SPEED = 6.0
+DEMO_FAST_SPEED = 4.0
 """Clock speed of ``rig demo --fast`` (the devices keep up at this rate on a loaded two-core laptop)."""
 
 
