@@ -119,6 +119,7 @@ def run_demo(out_dir: Path, *, fast: bool = False, config: Path | None = None) -
     _stage(result, "record", record_stage)
     session = out_dir / "session" / "demo"
     _stage(result, "calibrate", lambda: _calibrate(session, out_dir))
+    _stage(result, "steering-ratio", lambda: _steering_ratio(session, out_dir))
     _stage(result, "validate", lambda: _validate(session, out_dir / "report"))
     _stage(result, "rollover", lambda: _rollover(session, out_dir))
     return result
@@ -257,3 +258,15 @@ def _rollover(session: Path, out_dir: Path) -> tuple[str, tuple[Path, ...]]:
     first = rep.prediction.first_warning_s()
     text += "; no rollover warning" if first is None else f"; first warning (prediction ≥ 0.9) at {first:.1f} s"
     return text, (png,)
+
+
+def _steering_ratio(session: Path, out_dir: Path) -> tuple[str, tuple[Path, ...]]:
+    """Steering ratio from the constant-SWA circles of the drive, against the simulator's steering gear."""
+    from rig.calibrate import calibrate_steering_ratio, format_steering, plot_steering, steering_record
+    from rig.sessiondata import load_inputs, update_calibration_file
+
+    cal = calibrate_steering_ratio(load_inputs(session, truth=True, optical=False))
+    files = (plot_steering(cal, out_dir / "steering-ratio.png"),
+             update_calibration_file(session, "steering_ratio", steering_record(cal)))
+    text = format_steering(cal)
+    return text.splitlines()[0] + "\n" + "\n".join("    " + line for line in text.splitlines()[1:]), files

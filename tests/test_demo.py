@@ -61,3 +61,13 @@ def test_validation_report_and_rollover_are_written(demo_out: Path) -> None:
     metrics = json.loads((demo_out / "report" / "metrics.json").read_text())
     assert metrics["manoeuvres"]
     assert (demo_out / "rollover.png").stat().st_size > 10_000
+
+
+def test_steering_ratio_from_the_demo_circles_matches_the_simulated_gear(demo_out: Path) -> None:
+    rows = json.loads((demo_out / "session" / "demo.calibration.json").read_text())["results"]["steering_ratio"]["rows"]
+    assert {r["direction"] for r in rows} == {"forward", "reverse"}
+    assert len(rows) >= 4
+    for r in rows:
+        # short demo holds (≈ 100° of arc) with RTK noise: within 2 % (the long-hold acceptance test asks 1 %)
+        assert abs(r["ratio"] / r["simulation_true_ratio"] - 1.0) < 0.02, r
+    assert (demo_out / "steering-ratio.png").stat().st_size > 10_000
