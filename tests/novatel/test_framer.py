@@ -10,7 +10,7 @@ from typing import Any
 
 import pynmea2
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from pyrtcm import RTCMReader
 from pyrtcm.rtcmhelpers import calc_crc24q
@@ -221,8 +221,13 @@ def test_any_garbage_between_frames_never_hides_a_frame(garbage: list[bytes]) ->
     The garbage may itself hold something frame-like; whatever else is returned must verify.
     """
     stream = b""
-    for junk, (_, wire, _) in zip(garbage, [*MIXED, (None, b"", b"")], strict=True):
+    previous = None
+    for junk, (kind, wire, _) in zip(garbage, [*MIXED, (None, b"", b"")], strict=True):
+        # An abbreviated log has neither CRC nor end marker: its continuation lines are '<' + blanks +
+        # fields, so a garbage line of that shape right after one is, by the protocol, more of it.
+        assume(not (previous is FrameKind.NOVATEL_ABBREV and junk[:1] == b"<" and junk[1:2] in (b" ", b"\t")))
         stream += junk + b"\r\n" + wire
+        previous = kind
     frames, stats = run([stream])
     want = iter((kind, raw) for kind, _, raw in MIXED)
     pending: tuple[Any, bytes] | None = next(want)
