@@ -26,6 +26,7 @@ supply the antenna, the RTK state and the message bodies.
 
 from __future__ import annotations
 
+import abc
 import contextlib
 import datetime as dt
 import logging
@@ -136,7 +137,7 @@ class _PortState:
     bytes_overrun: int = 0
 
 
-class SimReceiver:
+class SimReceiver(abc.ABC):
     """Common engine of the simulated receivers (see module docstring).
 
     Args:
@@ -352,9 +353,9 @@ class SimReceiver:
         """Log names the LOG command accepts."""
         return frozenset({"BESTPOS", "BESTVEL", "BESTXYZ", "TIME", "PSRDOP", "VERSION", "GPGGA"})
 
+    @abc.abstractmethod
     def antenna_state(self, t_gps_ns: int) -> AntennaState:
-        """True antenna state at a GPS time."""
-        raise NotImplementedError
+        """True antenna state at a GPS time (a rover follows the vehicle, a base stands still)."""
 
     def rtk_state(self, t_gps_ns: int) -> RtkState:
         """Solution type and differential age at a GPS time (no corrections: SINGLE)."""
@@ -372,8 +373,8 @@ class SimReceiver:
         """Process the event at ``t_gps_ns``; return the names of the asynchronous logs it renews."""
         return []
 
-    def on_correction_frame(self, raw: bytes, rx_gps_ns: int) -> None:
-        """A CRC-valid RTCM3 frame arrived on a port that accepts corrections."""
+    def on_correction_frame(self, raw: bytes, rx_gps_ns: int) -> None:  # noqa: B027 - optional hook
+        """A CRC-valid RTCM3 frame arrived on a port that accepts corrections (a base ignores them)."""
 
     def apply_simple(self, cmd: SimpleCommand) -> None:
         """Apply a simple configuration command (ECUTOFF …)."""
