@@ -172,7 +172,10 @@ def _plot_beta(sv: SessionValidation) -> Figure:
         ax.plot(t, _deg(sv.optical.beta), lw=0.7, color="tab:orange", label=f"optical ({sv.optical.sensor})")
     ax.plot(t, _deg(sv.estimate_rad), lw=0.8, color="tab:red", label=f"estimate ({sv.result.estimate_source})")
     if sv.truth_beta_rad is not None:
-        ax.plot(t, _deg(sv.truth_beta_rad), lw=0.7, color="k", ls="--", label="simulator truth")
+        # only where the references are defined: at walking speed or reversing β is large and meaningless
+        # for the validation (it would set the scale of the whole plot)
+        shown = np.where(np.isfinite(ref.beta), _deg(sv.truth_beta_rad), np.nan)
+        ax.plot(t, shown, lw=0.7, color="k", ls="--", label="simulator truth")
     ax.set(xlabel="t [s]", ylabel="β at CG [deg]",
            title="sideslip: references and estimate (grey: straight / low speed)")
     ax.legend(fontsize=8, loc="upper right")
