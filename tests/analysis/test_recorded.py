@@ -55,7 +55,7 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> Session:
     truth = simulate(drive, params, rate_hz=1000.0, origin=(sim.origin_lat_deg, sim.origin_lon_deg, sim.origin_h_m),
                      initial_heading_deg=sim.initial_heading_deg, seed=sim.seed)
     out = tmp_path_factory.mktemp("recorded_roll")
-    rec = record_simulated(cfg, out, name="dlc", drive=drive, truth=truth, speed=4.0, rtk=FAST_RTK,
+    rec = record_simulated(cfg, out, name="dlc", drive=drive, truth=truth, speed=2.0, rtk=FAST_RTK,
                            config_path=demo_config_path())
     assert rec.completed and rec.summary.recording.finalized, rec.summary
     return Session(load_inputs(Path(out) / "dlc", optical=False), _span(truth, "double_lane_change"))
