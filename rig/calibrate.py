@@ -54,7 +54,7 @@ from calibration.segments import (
 from calibration.steering import SteeringRatioTable, antenna_to_rear_axle, steering_ratio_from_circles
 from rig.config import ImuCalibrationConfig, SessionConfig, load_profile
 from rig.sessiondata import DualGnss, SessionInputs
-from vsccore.angles import unwrap, wrap_pi
+from vsccore.angles import unwrap, wrap_2pi, wrap_pi
 from vsccore.errors import CalibrationError, ConfigError
 
 __all__ = [
@@ -291,7 +291,7 @@ class BaselineCalibration:
 
 def _compass(az_rad: float) -> str:
     names = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")
-    return names[int(((math.degrees(az_rad) % 360.0) + 22.5) // 45.0) % 8]
+    return names[int((math.degrees(wrap_2pi(az_rad)) + 22.5) // 45.0) % 8]
 
 
 def calibrate_baseline(inputs: SessionInputs, options: BaselineOptions | None = None) -> BaselineCalibration:

@@ -26,6 +26,7 @@ from sim_devices.gnss.commands import LogFormat
 from sim_devices.gnss.constellation import GnssSystem, SatObservation, dops
 from sim_devices.gnss.rawlogs import GLONASS_PRN_OFFSET, gpgga_sentence, version_ascii, version_binary
 from sim_devices.gnss.solution import Solution
+from vsccore.angles import wrap_2pi
 
 __all__ = ["bestpos", "bestvel", "bestxyz", "gpgga", "heading", "markpos", "psrdop", "version"]
 
@@ -85,7 +86,7 @@ def _vel_type(sol: Solution) -> PositionType:
 def bestvel(sol: Solution, latency_s: float = 0.0) -> BestVel:
     """BESTVEL: horizontal speed, track over ground (clockwise from north, 0-360°), vertical speed."""
     ve, vn, vu = sol.vel_enu_mps
-    track = math.degrees(math.atan2(ve, vn)) % 360.0
+    track = math.degrees(wrap_2pi(math.atan2(ve, vn)))
     return BestVel(
         SolutionStatus.SOL_COMPUTED,
         _vel_type(sol),

@@ -37,6 +37,7 @@ from sim_devices.gnss.rtcm import (
 from sim_devices.gnss.solution import Solution
 from sim_devices.gnss.timebase import SimTimeBase, SyncSchedule
 from sim_devices.vehicle.truth import GroundTruth
+from vsccore.angles import wrap_2pi
 from vsccore.clock import Clock
 from vsccore.errors import SimulationError
 from vsccore.gpstime import NS_PER_S, NS_PER_WEEK
@@ -222,7 +223,7 @@ class SimRover(SimReceiver):
             return None
         sig_h = self.heading_sigma_deg_at_1m / length
         sig_p = 2.0 * sig_h
-        hdg = (math.degrees(math.atan2(de, dn)) + float(self._rng.normal(0.0, sig_h))) % 360.0
+        hdg = math.degrees(wrap_2pi(math.atan2(de, dn) + math.radians(float(self._rng.normal(0.0, sig_h)))))
         pitch = math.degrees(math.atan2(du, math.hypot(de, dn))) + float(self._rng.normal(0.0, sig_p))
         sol = self.solution(t_gps_ns)
         return bodies.heading(
