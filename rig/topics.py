@@ -1039,30 +1039,6 @@ class CanFrameRecord:
     """Data length code on the wire (0..15)."""
     data: bytes
 
-    @classmethod
-    def from_python_can(cls, msg: can.Message, host_ts_ns: int, device_ts_ns: int | None = None) -> CanFrameRecord:
-        """From a python-can message (``device_ts_ns`` defaults to ``msg.timestamp`` when it is set)."""
-        flags = CanFlag(0)
-        if msg.is_extended_id:
-            flags |= CanFlag.EXTENDED
-        if msg.is_error_frame:
-            flags |= CanFlag.ERROR
-        if msg.is_fd:
-            flags |= CanFlag.FD
-        if msg.is_remote_frame:
-            flags |= CanFlag.REMOTE
-        if msg.is_rx:
-            flags |= CanFlag.RX
-        if msg.bitrate_switch:
-            flags |= CanFlag.BRS
-        if msg.error_state_indicator:
-            flags |= CanFlag.ESI
-        if device_ts_ns is None and msg.timestamp:
-            device_ts_ns = round(msg.timestamp * 1e9)
-        data = bytes(msg.data or b"")
-        dlc = _len_to_dlc(msg.dlc) if msg.is_fd else int(msg.dlc)
-        return cls(device_ts_ns, host_ts_ns, int(msg.arbitration_id), flags, dlc, data)
-
     def to_python_can(self) -> can.Message:
         import can as _can
 
@@ -1084,13 +1060,6 @@ class CanFrameRecord:
 
 
 _DLC_TO_LEN = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
-
-
-def _len_to_dlc(length: int) -> int:
-    for code, n in enumerate(_DLC_TO_LEN):
-        if n >= length:
-            return code
-    raise ValueError(f"CAN data length {length} > 64")
 
 
 def pack_can_columns(
