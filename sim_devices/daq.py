@@ -607,6 +607,11 @@ class SimDaqBackend(DaqBackend):
         lost, self._pending_lost = self._pending_lost, None
         return first, data, lost
 
+    def _available(self) -> int:
+        if self._renderer is None or not self.link.connected:
+            return 0
+        return self._acquired(self.clock.now_ns()) - self._next
+
     def _stop(self) -> None:
         self._renderer = None
 

@@ -339,6 +339,17 @@ class DaqBackend(ABC):
             lost_before=lost,
         )
 
+    def available(self) -> int:
+        """Samples per channel acquired and not yet read (0 when not running or the backend cannot tell).
+
+        A reader that fell behind takes them in one :meth:`read` instead of block by block (see
+        :class:`~drivers.daq.session.DaqSession`), so it catches up with one call's overhead. Never
+        raises for a device that has gone: the next :meth:`read` reports that.
+        """
+        if not self._running:
+            return 0
+        return max(0, min(self._available(), self._buffer_size))
+
     def stop(self) -> None:
         """Stop the acquisition (idempotent); unread samples are discarded."""
         if self._running:
@@ -384,6 +395,10 @@ class DaqBackend(ABC):
     @abstractmethod
     def _stop(self) -> None:
         """Stop the acquisition."""
+
+    def _available(self) -> int:
+        """Samples per channel waiting in the acquisition buffer (optional hook; 0: unknown)."""
+        return 0
 
     def _close(self) -> None:  # noqa: B027 - optional hook, most backends hold nothing after stop
         """Release the device."""

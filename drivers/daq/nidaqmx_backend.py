@@ -165,6 +165,14 @@ class NidaqmxBackend(DaqBackend):
         self._next_index = first + n_samples
         return first, buf, lost
 
+    def _available(self) -> int:
+        if self._task is None:
+            return 0
+        try:
+            return int(self._task.in_stream.avail_samp_per_chan)
+        except self._ni.errors.DaqError:
+            return 0  # the next read reports what is wrong with the task
+
     def _recover_overflow(self, buf: FloatArray, n_samples: int, timeout_s: float) -> int:
         """Re-read from half a buffer behind the newest sample; return the first index read."""
         ni = self._ni

@@ -61,7 +61,11 @@ class _ConsumerError(Exception):
 
 
 class DaqSession:
-    """Reads blocks from a (re)connected DAQ backend in a thread."""
+    """Reads blocks from a (re)connected DAQ backend in a thread.
+
+    Blocks are ``block_size`` samples; a reader that fell behind takes every whole block waiting
+    (up to ``catch_up_s`` of samples) in one read, so a busy host costs latency, not samples.
+    """
 
     def __init__(
         self,
@@ -75,6 +79,7 @@ class DaqSession:
         block_size: int | None = None,
         buffer_size: int | None = None,
         read_timeout_s: float | None = None,
+        catch_up_s: float = 1.0,
         reconnect: ReconnectPolicy | None = None,
         health: ChannelHealth | None = None,
         sync: SyncEdgeDetector | None = None,
@@ -90,6 +95,12 @@ class DaqSession:
         if self._block_size < 1:
             raise ConfigError(f"DAQ session {name!r}: block_size must be >= 1, got {self._block_size}")
         self._buffer_size = buffer_size
+        if not (math.isfinite(catch_up_s) and catch_up_s >= 0):
+            raise ConfigError(f"DAQ session {name!r}: catch_up_s must be >= 0, got {catch_up_s}")
+        max_read = max(self._block_size, round(catch_up_s * rate_hz))
+        if buffer_size is not None:
+            max_read = min(max_read, buffer_size)
+        self._max_blocks_per_read = max(1, max_read // self._block_size)
         block_s = self._block_size / rate_hz
         self._read_timeout_s = read_timeout_s if read_timeout_s is not None else 2.0 * block_s + 1.0
         self._reconnect = reconnect if reconnect is not None else ReconnectPolicy()
@@ -364,10 +375,21 @@ class DaqSession:
         self._emit(kind, f"{backend.device}: {len(self._channels)} channels at {self._rate_hz:g} Hz")
         return backend
 
+    def _read_size(self, backend: DaqBackend) -> int:
+        """One block, or as many whole blocks as are waiting (up to ``catch_up_s`` of samples).
+
+        A reader that fell behind (a busy host) catches up with one read, one consumer call and one
+        set of checks per ``catch_up_s`` instead of per block, so it does not stay behind until the
+        buffer overflows.
+        """
+        n = self._block_size
+        blocks = min(backend.available() // n, self._max_blocks_per_read)  # available() <= the buffer
+        return n * max(1, blocks)
+
     def _read_loop(self, backend: DaqBackend) -> None:
         while not self._stop.is_set():
             try:
-                block = backend.read(self._block_size, self._read_timeout_s)
+                block = backend.read(self._read_size(backend), self._read_timeout_s)
             except (DeviceError, DeviceTimeoutError) as exc:
                 self._emit(DaqEventKind.DISCONNECTED, f"{backend.device}: {exc}")
                 return

@@ -73,6 +73,10 @@ class InStream:
     def total_samp_per_chan_acquired(self) -> int:
         return self._task.acquired
 
+    @property
+    def avail_samp_per_chan(self) -> int:
+        return max(0, self._task.acquired - self.curr_read_pos)
+
 
 class AIChannels:
     def __init__(self) -> None:
