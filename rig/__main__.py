@@ -2,4 +2,5 @@
 
 from rig.cli.main import main
 
-main()
+if __name__ == "__main__":  # not when a spawned process (the simulated devices) imports it
+    main()

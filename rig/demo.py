@@ -142,7 +142,8 @@ def _record(
     out.mkdir(parents=True, exist_ok=True)
     for old in out.glob("demo.*.mcap"):
         old.unlink()
-    rec = record_simulated(cfg, out, name="demo", drive=drive, speed=speed, truth=truth, config_path=config)
+    rec = record_simulated(cfg, out, name="demo", drive=drive, speed=speed, truth=truth, config_path=config,
+                           device_process=True)
     summary = rec.summary
     if summary.recording.error is not None:
         raise summary.recording.error

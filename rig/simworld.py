@@ -23,9 +23,13 @@ truth on ``/sim/truth`` as simulated time passes, plus the simulated DAQ's true 
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import logging
 import math
+import multiprocessing
 import shutil
+import signal
 import tempfile
 import threading
 import time
@@ -39,7 +43,7 @@ import numpy as np
 
 import rig.topics as T  # noqa: N812 - topics used as a namespace
 from drivers.analog import AnalogChannelSpec
-from drivers.can.bus import CanBusConfig, open_bus
+from drivers.can.bus import CanBusConfig, TimestampSource, open_bus
 from drivers.daq import (
     ChannelHealth,
     DaqBlock,
@@ -68,6 +72,7 @@ from sim_devices.gnss import (
     SolutionNoise,
     SyncSchedule,
 )
+from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from sim_devices.vehicle import Drive, GroundTruth, Scenario, VehicleParams, demo_drive, make_scenario, simulate
 from sim_devices.vsc_ecu import EcuOutputs, VscEcu, VscEcuConfig, simulate_ecu
 from vsccore.clock import Clock, ScaledClock
@@ -75,6 +80,9 @@ from vsccore.errors import ConfigError, DeviceError, SimulationError
 from vsccore.gpstime import NS_PER_S, gps_ns_to_unix_ns
 
 if TYPE_CHECKING:
+    from multiprocessing.connection import Connection
+    from multiprocessing.process import BaseProcess
+
     from rig.recorder import Source
 
 __all__ = [
@@ -198,6 +206,11 @@ class SimWorld:
         sync_period_s: interval of the sync switch's pulses.
         truth_rate_hz: rate of the ground truth (and of ``/sim/truth``).
         truth: the drive's ground truth when it has been simulated already (with this configuration).
+        device_process: run the simulated receivers and ECUs in a separate process (see
+            :class:`_DeviceHost`), as real devices run on their own hardware: the recording process
+            then has the interpreter to itself, so the clock can run faster. The DAQ and the
+            truth topic stay in this process; faults (unplugging) of receivers and ECUs are only
+            available with the devices in this process.
     """
 
     def __init__(
@@ -211,6 +224,7 @@ class SimWorld:
         sync_period_s: float = 1.0,
         truth_rate_hz: float = 1000.0,
         truth: GroundTruth | None = None,
+        device_process: bool = False,
     ) -> None:
         if cfg.simulation is None:
             raise ConfigError("simulation: a simulated session needs a [simulation] table in its configuration")
@@ -238,12 +252,16 @@ class SimWorld:
         has_rover = any(r.role == "rover" for r in self._sim_receivers)
         self.lead_s = float(lead_s if lead_s is not None else (self.rtk.time_to_fix_s + 4.0 if has_rover else 1.0))
         self.duration_s = float(self.truth.t[-1])
+        self.sync_period_s = sync_period_s
         self.sync = SyncSchedule.for_truth(self.timebase, -self.lead_s + 0.5, self.duration_s, sync_period_s)
         self.truth_t0_utc_ns = gps_ns_to_unix_ns(self.timebase.truth_start_gps_ns, sim.gnss.leap_seconds)
         self._virtual_can = [c for c in cfg.can if c.interface == "virtual"]
         self._ecu_config = VscEcuConfig(seed=sim.seed)
+        self._host: _DeviceHost | None = _DeviceHost(self) if device_process else None
         # Computed before the clock starts, so the ECU is on time from its first frame.
-        self._ecu_outputs: EcuOutputs | None = simulate_ecu(self.truth, self._ecu_config) if self._virtual_can else None
+        self._ecu_outputs: EcuOutputs | None = (
+            simulate_ecu(self.truth, self._ecu_config) if self._virtual_can and not device_process else None
+        )
         self.clock: ScaledClock | None = None
         self.receivers: dict[str, SimReceiver] = {}
         self.ecus: dict[str, VscEcu] = {}
@@ -268,17 +286,23 @@ class SimWorld:
         tail_s = 0.5 + self.sim.gnss.output_latency_s
         return self.timebase.truth_start_ns + round((self.duration_s + tail_s) * NS_PER_S)
 
-    def start(self) -> None:
-        """Start the clock and every simulated device (stopped again if one fails)."""
+    def start(self, clock: ScaledClock | None = None) -> None:
+        """Start the clock (or take ``clock``) and every simulated device (stopped again if one fails)."""
         if self.clock is not None:
             raise SimulationError("sim world already started")
-        self._dir = Path(tempfile.mkdtemp(prefix="vsc-simworld-"))
-        self.clock = self.timebase.make_clock(self.speed, self.lead_s)
         try:
-            for rc in self._sim_receivers:
-                self._start_receiver(rc, self.clock, self._dir)
-            for cc in self._virtual_can:
-                self._start_ecu(cc, self.clock)
+            if self._host is not None:
+                # the host process imports and builds its devices before the clock starts
+                self._host.spawn()
+            self.clock = clock if clock is not None else self.timebase.make_clock(self.speed, self.lead_s)
+            if self._host is not None:
+                self._host.start(self.clock)
+            else:
+                self._dir = Path(tempfile.mkdtemp(prefix="vsc-simworld-"))
+                for rc in self._sim_receivers:
+                    self._start_receiver(rc, self.clock, self._dir)
+                for cc in self._virtual_can:
+                    self._start_ecu(cc, self.clock)
         except BaseException:
             self.stop()
             raise
@@ -292,6 +316,8 @@ class SimWorld:
         bytes dropped because the port's baud rate could not carry them, DAQ segments started.
         Kept after :meth:`stop`."""
         out = dict(self._final_health)
+        if self._host is not None:
+            out.update(self._host.health)
         for channel, ecu in self.ecus.items():
             out[f"ecu:{channel}"] = {"frames_sent": ecu.frames_sent, "frames_skipped": ecu.frames_skipped}
         for name, rx in self.receivers.items():
@@ -303,6 +329,11 @@ class SimWorld:
         """Stop every device and join its thread; remove the port links (idempotent)."""
         errors: list[BaseException] = []
         self._stop_truth()
+        if self._host is not None:
+            try:
+                self._host.stop()
+            except SimulationError as exc:
+                errors.append(exc)
         if self.ecus or self.receivers:
             self._final_health = self.health()
         for ecu in self.ecus.values():
@@ -437,11 +468,15 @@ class SimWorld:
         """The device path of a receiver's command port (its pty for ``sim://NAME``)."""
         if not receiver.port.startswith(SIM_PREFIX):
             return receiver.port
+        if self._host is not None:
+            return self._host.ports(receiver)[0]
         rx, _ = self._receiver_for(receiver.port, f"receivers.{receiver.name}.port")
         return rx.port_path
 
     def correction_port(self, receiver: ReceiverConfig) -> str | None:
         """The device path wired to a receiver's correction port (None: use its command port)."""
+        if self._host is not None:
+            return self._host.ports(receiver)[1]
         if receiver.correction_device is not None:
             if not receiver.correction_device.startswith(SIM_PREFIX):
                 return receiver.correction_device
@@ -462,6 +497,8 @@ class SimWorld:
         """
         if not self.can_link.connected:
             raise DeviceError(f"{config.describe()}: simulated CAN adapter unplugged")
+        if self._host is not None and config.interface == "virtual":
+            config = self._host.can_config(config)
         return _LinkedBus(open_bus(config), self.can_link)
 
     # --- the simulated DAQ -----------------------------------------------------------------------
@@ -596,6 +633,192 @@ class SimWorld:
                 self._truth_next = i1
 
 
+# ---------------------------------------------------------------------------------------------
+# The simulated devices in a process of their own
+# ---------------------------------------------------------------------------------------------
+
+_HOST_START_TIMEOUT_S = 120.0
+"""Longest wait for the device process to import, build its world and start its devices."""
+_HOST_STOP_TIMEOUT_S = 15.0
+
+
+@dataclass(frozen=True, slots=True)
+class _HostSpec:
+    """What the device process needs to build the same world (pickled to it)."""
+
+    cfg: SessionConfig
+    truth: GroundTruth
+    speed: float
+    lead_s: float
+    rtk: RtkParams
+    sync_period_s: float
+
+
+class _DeviceHost:
+    """The simulated receivers and ECUs of a :class:`SimWorld`, run in a child process.
+
+    Protocol on a :func:`multiprocessing.Pipe` (pickled tuples): child → ``("loaded",)`` once it has
+    imported and built its world (before the clock starts, so its start-up costs no simulated
+    time); parent → ``("start", clock)`` with the shared :class:`ScaledClock` (CLOCK_MONOTONIC is
+    system-wide, so both processes read the same simulated time); child → ``("ready", ports,
+    can_port)``: each receiver's (command port, correction port) paths and the TCP port of a
+    socketcand server on 127.0.0.1 serving the virtual CAN channels; parent → ``("stop",)``; child →
+    ``("stopped", health)``. A failure in the child arrives as ``("error", text)``; the child also
+    stops when the pipe closes (the parent died).
+    """
+
+    def __init__(self, world: SimWorld) -> None:
+        self._world = world
+        self._proc: BaseProcess | None = None
+        self._conn: Connection | None = None
+        self._ports: dict[str, tuple[str, str | None]] = {}
+        self._can_port: int | None = None
+        self.health: dict[str, dict[str, int]] = {}
+
+    def spawn(self) -> None:
+        w = self._world
+        ctx = multiprocessing.get_context("spawn")  # never fork a process that runs threads
+        parent, child = ctx.Pipe()
+        spec = _HostSpec(w.cfg, w.truth, w.speed, w.lead_s, w.rtk, w.sync_period_s)
+        proc = ctx.Process(target=_device_host_main, args=(child,), name="vsc-sim-devices", daemon=True)
+        proc.start()
+        child.close()
+        self._proc, self._conn = proc, parent
+        # The spec (tens of MB of truth) goes over our pipe, not in the spawn arguments: a child that
+        # dies while starting then breaks the pipe instead of leaving the parent blocked on a write.
+        try:
+            parent.send(spec)
+        except OSError as exc:
+            proc.join(1.0)
+            raise SimulationError(f"simulated devices: their process ended while starting "
+                                  f"(exit code {proc.exitcode}): {exc}") from exc
+        self._expect("loaded")
+
+    def start(self, clock: ScaledClock) -> None:
+        assert self._conn is not None
+        self._conn.send(("start", clock))
+        _, self._ports, self._can_port = self._expect("ready")
+        log.info("sim world: devices in process %s (socketcand port %s)",
+                 self._proc.pid if self._proc else None, self._can_port)
+
+    def _expect(self, what: str) -> tuple[Any, ...]:
+        conn, proc = self._conn, self._proc
+        assert conn is not None and proc is not None
+        deadline = time.monotonic() + _HOST_START_TIMEOUT_S
+        while True:
+            if conn.poll(0.2):
+                try:
+                    msg = conn.recv()
+                except EOFError:
+                    proc.join(1.0)
+                    raise SimulationError(f"simulated devices: their process ended (exit code {proc.exitcode}) "
+                                          f"before it was {what}") from None
+                if msg[0] == what:
+                    return tuple(msg)
+                if msg[0] == "error":
+                    raise SimulationError(f"simulated devices: {msg[1]}")
+            elif not proc.is_alive():
+                raise SimulationError(f"simulated devices: their process exited with code {proc.exitcode} "
+                                      f"before it was {what}")
+            if time.monotonic() > deadline:
+                raise SimulationError(f"simulated devices: not {what} within {_HOST_START_TIMEOUT_S:.0f} s")
+
+    def ports(self, receiver: ReceiverConfig) -> tuple[str, str | None]:
+        try:
+            return self._ports[receiver.name]
+        except KeyError:
+            raise ConfigError(f"receivers.{receiver.name}: no simulated ports for it "
+                              f"(simulated: {sorted(self._ports)})") from None
+
+    def can_config(self, config: CanBusConfig) -> CanBusConfig:
+        """``config`` (a virtual bus) as the socketcand bus the device process serves it on; the
+        ECU's frame stamps are the shared clock's, as on the in-process virtual bus."""
+        if self._can_port is None:
+            raise ConfigError(f"{config.describe()}: the simulated devices serve no CAN bus")
+        options = {**config.options, "host": "127.0.0.1", "port": self._can_port}
+        return dataclasses.replace(config, interface="socketcand", options=options,
+                                   timestamp_source=TimestampSource.HOST)
+
+    def stop(self) -> None:
+        proc, conn = self._proc, self._conn
+        if proc is None or conn is None:
+            return
+        self._proc = self._conn = None
+        error: str | None = None
+        try:
+            with contextlib.suppress(OSError):
+                conn.send(("stop",))
+            deadline = time.monotonic() + _HOST_STOP_TIMEOUT_S
+            while time.monotonic() < deadline and (proc.is_alive() or conn.poll(0)):
+                if not conn.poll(0.2):
+                    continue
+                try:
+                    msg = conn.recv()
+                except EOFError:
+                    break
+                if msg[0] == "stopped":
+                    self.health = msg[1]
+                    break
+                if msg[0] == "error":
+                    error = msg[1]
+        finally:
+            proc.join(_HOST_STOP_TIMEOUT_S)
+            if proc.is_alive():
+                log.error("sim world: device process %s did not stop; terminating it", proc.pid)
+                proc.terminate()
+                proc.join(5.0)
+            conn.close()
+            with contextlib.suppress(ValueError):
+                proc.close()
+        if error is not None:
+            raise SimulationError(f"simulated devices: {error}")
+
+
+def _device_host_main(conn: Connection) -> None:
+    """Entry point of the device process (see :class:`_DeviceHost`)."""
+    # Ctrl-C reaches the whole process group: the recording process decides when the devices stop.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    world: SimWorld | None = None
+    server: SocketcandServer | None = None
+    try:
+        spec: _HostSpec = conn.recv()
+        world = SimWorld(spec.cfg, speed=spec.speed, lead_s=spec.lead_s, rtk=spec.rtk,
+                         sync_period_s=spec.sync_period_s, truth=spec.truth)
+        conn.send(("loaded",))
+        msg = conn.recv()
+        if msg[0] != "start":
+            return
+        world.start(clock=msg[1])
+        ports = {rc.name: (world.port(rc), world.correction_port(rc))
+                 for rc in spec.cfg.receivers
+                 if rc.port.startswith(SIM_PREFIX) or (rc.correction_device or "").startswith(SIM_PREFIX)}
+        can_port = None
+        if world.ecus:
+            server = SocketcandServer(virtual_channel_opener({ch: ch for ch in world.ecus}), host="127.0.0.1")
+            server.start()
+            can_port = server.address[1]
+        conn.send(("ready", ports, can_port))
+        while conn.recv()[0] != "stop":
+            pass
+    except EOFError:
+        log.warning("sim device process: the recording process went away; stopping")
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    finally:
+        health: dict[str, dict[str, int]] = {}
+        try:
+            if server is not None:
+                server.stop()
+            if world is not None:
+                world.stop()
+                health = world.health()
+        finally:
+            with contextlib.suppress(OSError):
+                conn.send(("stopped", health))
+            conn.close()
+
+
 def _sim_target(url: str) -> tuple[str, str | None]:
     """``sim://NAME`` → (NAME, None); ``sim://NAME/COM2`` → (NAME, "COM2")."""
     rest = url.removeprefix(SIM_PREFIX)
@@ -644,16 +867,18 @@ def record_simulated(
     options: RecorderOptions | None = None,
     on_started: Callable[[RecordSession], None] | None = None,
     truth: GroundTruth | None = None,
+    device_process: bool = False,
 ) -> SimRecording:
     """Run a :class:`SimWorld` and record it with a :class:`~rig.session.RecordSession` until the
     drive ends (or ``stop`` is set, or the recording fails); return what was recorded.
 
     ``actions`` run at their truth times on this thread; ``tick`` every 0.25 s of real time (a
-    dashboard); ``on_started`` once the session records.
+    dashboard); ``on_started`` once the session records. ``device_process``: see :class:`SimWorld`.
     """
     t0 = time.monotonic()
     stop = stop or threading.Event()
-    world = SimWorld(cfg, drive=drive, speed=speed, lead_s=lead_s, rtk=rtk, truth=truth)
+    world = SimWorld(cfg, drive=drive, speed=speed, lead_s=lead_s, rtk=rtk, truth=truth,
+                     device_process=device_process)
     world.start()
     completed = False
     try:

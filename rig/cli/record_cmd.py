@@ -137,6 +137,15 @@ def sim_record(
     fast: Annotated[bool, typer.Option("--fast", help=f"Run at least {FAST_SPEED:g}× real time.")] = False,
     speed: Annotated[float | None, typer.Option("--speed", min=0.01, help="Clock speed factor.")] = None,
     no_dashboard: Annotated[bool, typer.Option("--no-dashboard", help="Plain status lines, no live view.")] = False,
+    device_process: Annotated[
+        bool,
+        typer.Option(
+            "--device-process/--one-process",
+            help="Run the simulated receivers and ECU in a process of their own (CAN over socketcand on "
+                 "127.0.0.1), as real devices run on their own hardware, so the recorder has this process to "
+                 "itself and the clock can run faster; --one-process keeps everything in one process.",
+        ),
+    ] = True,
 ) -> None:
     """Record a simulated session: the simulated car of CONFIG with every device on pseudo-terminals, a
     virtual CAN bus and the simulated DAQ, through the real recording path, until the drive ends."""
@@ -155,7 +164,7 @@ def sim_record(
     stop = threading.Event()
     with _stop_on_signals(stop) as got, _dashboard(not no_dashboard) as tick:
         result = record_simulated(
-            cfg, out, name=name, speed=factor, stop=stop, tick=tick, config_path=config,
+            cfg, out, name=name, speed=factor, stop=stop, tick=tick, config_path=config, device_process=device_process,
             on_started=lambda s: typer.echo(f"recording {s.name} to {s.base}.000.mcap (Ctrl-C to stop)", err=True),
         )
     world = result.world
