@@ -20,8 +20,11 @@ Encoding (the simulated receiver)::
 
 Modules: ``crc`` (checksums), ``enums``, ``messages`` (dataclasses), ``layouts`` (declarative
 field tables and body codecs), ``binary`` / ``ascii`` (one frame each way), ``framer`` (stream),
-``encode`` (all encoders), ``jsonview`` (JSON-able dicts).
+``encode`` (all encoders), ``jsonview`` (JSON-able dicts), ``columns`` (a whole buffer decoded in bulk
+into numpy columns per log, for post-processing: ``decode_columns(data).log("BESTPOS")``).
 """
+
+from typing import TYPE_CHECKING, Any
 
 from drivers.novatel.ascii import decode_abbreviated, decode_ascii, parse_prompt, parse_response
 from drivers.novatel.binary import decode_binary
@@ -73,6 +76,21 @@ from drivers.novatel.messages import (
     make_short_header,
 )
 
+if TYPE_CHECKING:
+    from drivers.novatel.columns import ColumnBatch, LogColumns, RejectReason, decode_columns
+
+#: Exported from :mod:`drivers.novatel.columns` on first use, so that importing the codec does not load numpy.
+_COLUMNS_EXPORTS = frozenset({"ColumnBatch", "LogColumns", "RejectReason", "decode_columns"})
+
+
+def __getattr__(name: str) -> Any:
+    if name in _COLUMNS_EXPORTS:
+        from drivers.novatel import columns
+
+        return getattr(columns, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = [
     "LOG_IDS",
     "MESSAGE_TYPES",
@@ -82,6 +100,7 @@ __all__ = [
     "Body",
     "BodyFormat",
     "ClockModelStatus",
+    "ColumnBatch",
     "Datum",
     "Frame",
     "FrameKind",
@@ -92,6 +111,7 @@ __all__ = [
     "Heading",
     "Heading2",
     "Log",
+    "LogColumns",
     "Mark2Pos",
     "Mark2Time",
     "MarkPos",
@@ -101,6 +121,7 @@ __all__ = [
     "Prompt",
     "PsrDop",
     "RawBody",
+    "RejectReason",
     "Response",
     "ShortHeader",
     "SkipReason",
@@ -113,6 +134,7 @@ __all__ = [
     "decode_abbreviated",
     "decode_ascii",
     "decode_binary",
+    "decode_columns",
     "encode_abbreviated",
     "encode_ascii",
     "encode_binary",

@@ -5,7 +5,8 @@ complete chunk) and keeps each topic's payloads; the accessors decode on first u
 
 - :meth:`Session.gnss` — BESTPOS/BESTVEL/HEADING/MARKPOS/MARKTIME/TIME of a receiver as column
   tables with validity; times from the log header's GPS time converted to UTC with the
-  receiver-reported leap seconds;
+  receiver-reported leap seconds; from the decoded topics, or (``source="raw"``) decoded again from
+  the receiver's raw port bytes;
 - :meth:`Session.can_frames` / :meth:`Session.can_roles` — every frame of a bus, and its rig roles
   through :class:`drivers.can.vector_decode.VectorRoleDecoder` (DBC and role map from the session's
   attachments unless given); frame times mapped interface clock → host → GPS by lower-envelope
@@ -457,11 +458,24 @@ class Session:
                 return Table(topic, self.gps_to_utc(g[order]), tbl.host_ns[order], cols, tbl.valid[order])
         return tbl
 
-    def gnss(self, receiver: str) -> GnssData:
+    def gnss(self, receiver: str, *, source: str = "decoded") -> GnssData:
         """The decoded logs of ``receiver``; times from the GPS time of each log (UTC when leap seconds are known).
 
         Validity: BESTPOS/BESTVEL/HEADING/MARKPOS rows with ``sol_status == SOL_COMPUTED``.
+
+        ``source="decoded"`` (default) reads the decoded topics the recorder wrote. ``source="raw"``
+        decodes the logs again from the receiver's raw port bytes (``/gnss/<receiver>/raw``) with the
+        columnar decoder :func:`drivers.novatel.columns.decode_columns`, and gives tables with the same
+        columns and dtypes; see :meth:`gnss_from_raw`.
+
+        Raises:
+            AnalysisError: no such receiver (or, for ``raw``, no raw stream of it).
+            ConfigError: ``source`` is neither ``decoded`` nor ``raw``.
         """
+        if source == "raw":
+            return self.gnss_from_raw(receiver)
+        if source != "decoded":
+            raise ConfigError(f"{self.path}: GNSS source {source!r} is neither 'decoded' nor 'raw'")
         if receiver not in self.receivers():
             raise AnalysisError(f"{self.path}: no GNSS data for receiver {receiver!r}; receivers: {self.receivers()}")
 
@@ -480,6 +494,83 @@ class Session:
             marktime=self._gnss_table(T.gnss_marktime(receiver), all_ok),
             time=self._gnss_table(T.gnss_time(receiver), all_ok),
         )
+
+    def raw_gnss_receivers(self) -> list[str]:
+        """Receivers whose raw port bytes are in the file."""
+        out = set()
+        for topic, n in self._counts.items():
+            spec, params = _spec(topic)
+            if n and spec is not None and "receiver" in params and topic.endswith("/raw"):
+                out.add(params["receiver"])
+        return sorted(out)
+
+    def _raw_chunks(self, receiver: str) -> tuple[IntArray, list[bytes]]:
+        """The raw byte chunks of a receiver in receive order, with their host receive times."""
+        topic = T.gnss_raw(receiver)
+        if topic in self._topics:
+            _log_t, pub, data = self._messages(topic)
+        else:  # not loaded (raw topics are left out by default): read that topic alone again
+            tms = [tm for p in self.parts for tm in scan_part(p, want=topic.__eq__).topics.values()]
+            pub = np.fromiter((t for tm in tms for t in tm.publish_time), dtype=np.int64)
+            data = [d for tm in tms for d in tm.data]
+        order = np.argsort(pub, kind="stable")
+        return pub[order], [data[i] for i in order.tolist()]
+
+    def gnss_from_raw(self, receiver: str) -> GnssData:
+        """The logs of ``receiver`` decoded again from its raw port bytes, as :meth:`gnss` gives the decoded ones.
+
+        The chunks of ``/gnss/<receiver>/raw`` are joined in receive order and decoded in bulk by
+        :func:`drivers.novatel.columns.decode_columns` (the same values as the receiver session's
+        per-message decoder); the tables have the decoded topics' columns and dtypes (built by
+        :func:`gnss_record_columns`). ``host_ns`` of a log is the receive time of the chunk that
+        completed its frame; ``time_ns`` its GPS time on UTC with :attr:`leap_seconds` (else the
+        receiver's own TIME logs in the raw stream; with neither, ``host_ns`` through
+        :meth:`host_to_utc`). Unlike the decoded topics this also holds logs configured ``raw_only``.
+        Frames that failed their CRC or were cut off (e.g. at a reconnect) are skipped and logged.
+
+        Raises:
+            AnalysisError: the file has no raw stream of ``receiver``.
+        """
+        from drivers.novatel.columns import MISSING_INT, decode_columns
+
+        key = ("gnss_raw", receiver)
+        if key in self._cache:
+            cached: GnssData = self._cache[key]
+            return cached
+        if receiver not in self.raw_gnss_receivers():
+            raise AnalysisError(f"{self.path}: no raw GNSS stream {T.gnss_raw(receiver)}; receivers with one: "
+                                f"{self.raw_gnss_receivers()}")
+        pub, chunks = self._raw_chunks(receiver)
+        chunk_end = np.cumsum([len(c) for c in chunks], dtype=np.int64)
+        batch = decode_columns(b"".join(chunks), logs=_RAW_GNSS_LOGS)
+        if any(batch.rejected.values()):
+            log.info("%s: raw stream of %s: frames skipped: %s", self.path, receiver,
+                     {k.value: v for k, v in batch.rejected.items() if v})
+        records = gnss_record_columns(batch)
+        leap = self.leap_seconds
+        if leap is None:
+            t_leap = records["time"].columns.get("leap_seconds")
+            ok = t_leap[t_leap != MISSING_INT] if t_leap is not None else np.zeros(0, dtype=np.int64)
+            leap = int(ok[-1]) if ok.size else None
+        topics = {"bestpos": T.gnss_bestpos(receiver), "bestvel": T.gnss_bestvel(receiver),
+                  "heading": T.gnss_heading(receiver), "markpos": T.gnss_markpos(receiver),
+                  "marktime": T.gnss_marktime(receiver), "time": T.gnss_time(receiver)}
+        tables: dict[str, Table] = {}
+        for kind, topic in topics.items():
+            rec = records[kind]
+            host = pub[np.searchsorted(chunk_end, rec.frame_end - 1, side="right")]
+            order = np.argsort(rec.gps_ns, kind="stable")
+            cols = {k: v[order] for k, v in rec.columns.items()} if len(order) else {}
+            if leap is not None:
+                time_ns = rec.gps_ns[order] + (GPS_EPOCH_UNIX_NS - leap * _NS)
+            else:
+                time_ns = self.host_to_utc(host[order])[0]
+            valid = (np.asarray(cols["sol_status"] == GOOD_SOLUTION) if "sol_status" in cols
+                     else np.ones(len(order), dtype=bool))
+            tables[kind] = Table(topic, time_ns, host[order], cols, valid)
+        out = GnssData(receiver=receiver, **tables)
+        self._cache[key] = out
+        return out
 
     # --- GNSS latency and the host clock --------------------------------------------------------
 
@@ -572,16 +663,11 @@ class Session:
         topic = T.gnss_raw(receiver)
         out: dict[tuple[str, int], int] | None = None
         if self._counts.get(topic):
-            if topic in self._topics:
-                _log_t, pub, data = self._messages(topic)
-            else:  # not loaded: read that topic alone again
-                tms = [tm for p in self.parts for tm in scan_part(p, want=topic.__eq__).topics.values()]
-                pub = np.fromiter((t for tm in tms for t in tm.publish_time), dtype=np.int64)
-                data = [d for tm in tms for d in tm.data]
+            _pub, chunks = self._raw_chunks(receiver)
             framer = Framer()
             out = {}
-            for i in np.argsort(pub, kind="stable").tolist():
-                for fr in framer.feed(data[i]):
+            for chunk in chunks:
+                for fr in framer.feed(chunk):
                     lg = fr.log
                     if lg is not None:
                         out[(lg.name, lg.header.gps_ns)] = len(fr.raw)
@@ -960,6 +1046,134 @@ class Session:
         out = Truth(np.ascontiguousarray(rec["time_ns"]), gt)
         self._cache["truth"] = out
         return out
+
+
+# ---------------------------------------------------------------------------------------------
+# GNSS logs decoded from raw bytes, in the decoded topics' columns
+# ---------------------------------------------------------------------------------------------
+
+_RAW_GNSS_LOGS = ("BESTPOS", "BESTVEL", "HEADING", "HEADING2", "MARKPOS", "MARKTIME", "TIME")
+
+
+@dataclass(frozen=True, slots=True)
+class RawGnssRecords:
+    """One decoded GNSS topic's records rebuilt from raw logs (buffer order)."""
+
+    gps_ns: IntArray
+    """GPS time of each record (the log header's; for MARKTIME the event's) as ns since the GPS epoch."""
+    frame_end: IntArray
+    """Offset one past each log's frame in the raw buffer."""
+    columns: dict[str, npt.NDArray[Any]]
+    """The record fields as :meth:`Session._table` gives them from the JSON records."""
+
+
+def _names(values: npt.NDArray[Any], enum: Any) -> npt.NDArray[np.str_]:
+    """Enum values → their names (``UNKNOWN_<n>`` for values outside the table), as the records hold them."""
+    uniq, inverse = np.unique(values, return_inverse=True)
+    return np.asarray([enum(int(v)).name for v in uniq.tolist()], dtype=str)[inverse.reshape(-1)]
+
+
+def _text(values: npt.NDArray[Any]) -> npt.NDArray[np.str_]:
+    return np.asarray(values.tolist(), dtype=str)  # the width of the longest value, as from JSON
+
+
+def _finite(values: npt.NDArray[Any]) -> FloatArray:
+    """JSON has no NaN or infinity: the recorder writes null, which reads back as NaN."""
+    x = np.asarray(values, dtype=np.float64)
+    return np.where(np.isfinite(x), x, np.nan)
+
+
+def gnss_record_columns(batch: Any) -> dict[str, RawGnssRecords]:
+    """The decoded GNSS topics' records (``bestpos``, ``bestvel``, ``heading``, ``markpos``, ``marktime``,
+    ``time``) built from a :class:`drivers.novatel.columns.ColumnBatch`, field for field as the recorder
+    builds them from each decoded log (:mod:`rig.session_devices`), and typed as :func:`_columns`
+    reads them back from JSON."""
+    from drivers.novatel.enums import ClockModelStatus, Datum, PositionType, SolutionStatus, TimeStatus, UTCStatus
+
+    out: dict[str, RawGnssRecords] = {}
+
+    def position(name: str) -> RawGnssRecords:
+        c = batch.log(name)
+        b, h = c.body, c.header
+        return RawGnssRecords(h["gps_ns"], c.end, {
+            "gps_time_ns": h["gps_ns"],
+            "time_status": _names(h["time_status"], TimeStatus),
+            "sol_status": _names(b["sol_status"], SolutionStatus),
+            "pos_type": _names(b["pos_type"], PositionType),
+            "lat_deg": _finite(b["lat_deg"]),
+            "lon_deg": _finite(b["lon_deg"]),
+            "height_msl_m": _finite(b["hgt_m"]),
+            "undulation_m": _finite(b["undulation_m"]),
+            "datum": _names(b["datum"], Datum),
+            "lat_std_m": _finite(b["lat_sigma_m"]),
+            "lon_std_m": _finite(b["lon_sigma_m"]),
+            "height_std_m": _finite(b["hgt_sigma_m"]),
+            "base_station_id": _text(b["stn_id"]),
+            "diff_age_s": _finite(b["diff_age_s"]),
+            "sol_age_s": _finite(b["sol_age_s"]),
+            "num_svs": b["num_svs"],
+            "num_sol_svs": b["num_soln_svs"],
+            "ext_sol_status": b["ext_sol_stat"],
+        })
+
+    out["bestpos"] = position("BESTPOS")
+    out["markpos"] = position("MARKPOS")
+    c = batch.log("BESTVEL")
+    out["bestvel"] = RawGnssRecords(c.header["gps_ns"], c.end, {
+        "gps_time_ns": c.header["gps_ns"],
+        "time_status": _names(c.header["time_status"], TimeStatus),
+        "sol_status": _names(c.body["sol_status"], SolutionStatus),
+        "vel_type": _names(c.body["vel_type"], PositionType),
+        "latency_s": _finite(c.body["latency_s"]),
+        "diff_age_s": _finite(c.body["diff_age_s"]),
+        "hor_speed_mps": _finite(c.body["hor_spd_mps"]),
+        "track_over_ground_deg": _finite(c.body["trk_gnd_deg"]),
+        "vert_speed_mps": _finite(c.body["vert_spd_mps"]),
+    })
+    c = batch.log("MARKTIME")
+    out["marktime"] = RawGnssRecords(c.body["event_gps_ns"], c.end, {
+        "gps_time_ns": c.body["event_gps_ns"],
+        "clock_status": _names(c.body["clock_status"], ClockModelStatus),
+        "clock_offset_s": _finite(c.body["offset_s"]),
+        "clock_offset_std_s": _finite(c.body["offset_std_s"]),
+        "utc_offset_s": _finite(c.body["utc_offset_s"]),
+        "event_input": np.full(len(c), "MARK1"),
+    })
+    c = batch.log("TIME")
+    b = c.body
+    iso = [f"{y:04d}-{mo:02d}-{d:02d}T{hh:02d}:{mi:02d}:{ms // 1000:02d}.{ms % 1000:03d}Z" for y, mo, d, hh, mi, ms in
+           zip(*(b[k].tolist() for k in ("utc_year", "utc_month", "utc_day", "utc_hour", "utc_min", "utc_ms")),
+               strict=True)]
+    out["time"] = RawGnssRecords(c.header["gps_ns"], c.end, {
+        "gps_time_ns": c.header["gps_ns"],
+        "clock_status": _names(b["clock_status"], ClockModelStatus),
+        "clock_offset_s": _finite(b["offset_s"]),
+        "clock_offset_std_s": _finite(b["offset_std_s"]),
+        "utc_offset_s": _finite(b["utc_offset_s"]),
+        "leap_seconds": b["leap_seconds"],
+        "utc_status": _names(b["utc_status"], UTCStatus),
+        "utc_iso": np.asarray(iso, dtype=str),
+    })
+    h1, h2 = batch.log("HEADING"), batch.log("HEADING2")
+    order = np.argsort(np.concatenate([h1.offset, h2.offset]), kind="stable")
+
+    def both(part: str, name: str) -> npt.NDArray[Any]:
+        return np.concatenate([getattr(h1, part)[name], getattr(h2, part)[name]])[order]
+
+    gps = both("header", "gps_ns")
+    out["heading"] = RawGnssRecords(gps, np.concatenate([h1.end, h2.end])[order], {
+        "gps_time_ns": gps,
+        "sol_status": _names(both("body", "sol_status"), SolutionStatus),
+        "pos_type": _names(both("body", "pos_type"), PositionType),
+        "length_m": _finite(both("body", "length_m")),
+        "heading_deg": _finite(both("body", "heading_deg")),
+        "pitch_deg": _finite(both("body", "pitch_deg")),
+        "heading_std_deg": _finite(both("body", "heading_sigma_deg")),
+        "pitch_std_deg": _finite(both("body", "pitch_sigma_deg")),
+        "num_svs": both("body", "num_svs"),
+        "num_sol_svs": both("body", "num_soln_svs"),
+    })
+    return out
 
 
 def _spec(topic: str) -> tuple[T.TopicSpec | None, dict[str, str]]:
