@@ -90,6 +90,10 @@ _EXTENDED = int(T.CanFlag.EXTENDED)
 _FD = int(T.CanFlag.FD)
 _NOT_DATA = CanFrameFlag.ERROR_FRAME | CanFrameFlag.REMOTE
 CAN_BLOCK_AGE_NS = 100_000_000
+_CAN_FLAGS: dict[int, T.CanFlag] = {}
+"""``CanFlag(bits)`` by bits: an enum construction per frame is a measurable share of the CAN thread."""
+_FLAG_NAMES: dict[int, list[str]] = {}
+"""``FrameFlag(bits).names()`` by bits (copied on use: the lists go into records)."""
 
 def receiver_commands(rc: ReceiverConfig) -> tuple[str, ...]:
     """The configuration commands a receiver gets at every (re)connect."""
@@ -509,7 +513,10 @@ class CanDevice(Device):
                 | (int(T.CanFlag.BRS) if ff & CanFrameFlag.BITRATE_SWITCH else 0)
                 | (int(T.CanFlag.ESI) if ff & CanFrameFlag.ERROR_STATE_INDICATOR else 0)
             )
-        rec = T.CanFrameRecord(f.device_ts_ns, f.host_ts_ns, f.arbitration_id, T.CanFlag(flags), f.dlc, f.data)
+        can_flags = _CAN_FLAGS.get(flags)
+        if can_flags is None:
+            can_flags = _CAN_FLAGS.setdefault(flags, T.CanFlag(flags))
+        rec = T.CanFrameRecord(f.device_ts_ns, f.host_ts_ns, f.arbitration_id, can_flags, f.dlc, f.data)
         with self._lock:
             if not self._pending:
                 self._pending_since = f.host_ts_ns
@@ -536,7 +543,13 @@ class CanDevice(Device):
             bits |= int(sample.flags)
             if sample.role == "lat_accel" and not sample.flags and not dec.flags:
                 s.ltr.add(t, v)
-        bad = FrameFlag(bits).names() if bits else []
+        if bits:
+            names = _FLAG_NAMES.get(bits)
+            if names is None:
+                names = _FLAG_NAMES.setdefault(bits, FrameFlag(bits).names())
+            bad = list(names)
+        else:
+            bad = []
         valid = not bits
         self.source.put(self.topic_roles, t, f.host_ts_ns, {
             "can_id": f.arbitration_id, "message": dec.message, "device_time_ns": f.device_ts_ns,

@@ -94,7 +94,11 @@ class SessionStatus:
 
 @dataclass(slots=True)
 class _Counter:
+    """Message count of one device, kept apart from its (frozen) :class:`DeviceStatus`: counting a
+    message is then an increment and an append, not a new record (it runs for every CAN frame)."""
+
     count: int = 0
+    last_host_ns: int | None = None
     window: deque[int] = field(default_factory=lambda: deque(maxlen=256))
 
 
@@ -122,14 +126,16 @@ class StatusBoard:
             self._counters[name] = _Counter()
 
     def message(self, name: str, host_ns: int) -> None:
-        """Count one message received from device ``name`` at host time ``host_ns``."""
+        """Count one message received from device ``name`` at host time ``host_ns`` (a starting or
+        lost device is OK again)."""
         with self._lock:
             c = self._counters[name]
             c.count += 1
+            c.last_host_ns = host_ns
             c.window.append(host_ns)
             d = self._devices[name]
-            state = DeviceState.OK if d.state in (DeviceState.STARTING, DeviceState.LOST) else d.state
-            self._devices[name] = replace(d, messages=c.count, last_host_ns=host_ns, state=state)
+            if d.state is DeviceState.STARTING or d.state is DeviceState.LOST:
+                self._devices[name] = replace(d, state=DeviceState.OK)
 
     def update(self, name: str, *, state: DeviceState | None = None, detail: str | None = None) -> None:
         with self._lock:
@@ -169,7 +175,8 @@ class StatusBoard:
                 rate = 0.0
                 if len(recent) >= 2 and recent[-1] > recent[0]:
                     rate = (len(recent) - 1) / ((recent[-1] - recent[0]) * 1e-9)
-                devices.append(replace(d, rate_hz=rate))
+                c = self._counters[name]
+                devices.append(replace(d, rate_hz=rate, messages=c.count, last_host_ns=c.last_host_ns))
             return SessionStatus(
                 name=self._name,
                 elapsed_s=(now_ns - self._t0) * 1e-9,

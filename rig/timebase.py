@@ -157,10 +157,13 @@ class ClockMap:
 # ---------------------------------------------------------------------------------------------
 
 
-def _lower_hull(x: FloatArray, y: FloatArray) -> list[int]:
+def _lower_hull(xa: FloatArray, ya: FloatArray) -> list[int]:
     """Indices of the lower convex hull of points sorted by x (Andrew's monotone chain)."""
+    # on Python floats: the same IEEE arithmetic as on numpy scalars, without their per-operation cost
+    x: list[float] = xa.tolist()
+    y: list[float] = ya.tolist()
     hull: list[int] = []
-    for i in range(x.size):
+    for i in range(len(x)):
         xi, yi = x[i], y[i]
         while len(hull) >= 2:
             a, b = hull[-2], hull[-1]
@@ -281,7 +284,11 @@ class ClockEstimator:
     clock — usually the host — saw it). Pairs are reduced to per-bin minima (``bin_s`` of device
     time), so memory grows by one point per bin. ``mapping()`` fits a line per ``window_s`` window
     (half-overlapping) and joins the windows into a piecewise-linear :class:`ClockMap`; ``to_ref``
-    uses the latest window's line (cached, refitted when a bin closes). ``min_latency_ns`` is a
+    uses the latest window's line, cached: refitted whenever a bin closes while there are fewer than
+    4·``refit_s`` of bins (the first seconds, while it converges), then once per ``refit_s`` of
+    device time (a refit costs about a millisecond; a CAN bus asks for ``to_ref`` thousands of times
+    a second, and a line two seconds old differs from a fresh one by its drift error times two
+    seconds, nanoseconds). ``min_latency_ns`` is a
     known constant part of the latency (e.g. the serial transmission time of a log) that the
     envelope cannot see; it is subtracted. A window whose line implies a drift beyond
     ``max_drift_ppm`` (no quartz clock is that far off; a device that sends a backlog in a burst
@@ -299,9 +306,12 @@ class ClockEstimator:
         recent: int = 4096,
         min_span_s: float = 2.0,
         max_drift_ppm: float = 2000.0,
+        refit_s: float = 2.0,
     ) -> None:
         if bin_s <= 0 or window_s < 4 * bin_s:
             raise ValueError(f"clock {name}: need bin_s > 0 and window_s >= 4·bin_s, got {bin_s}, {window_s}")
+        if refit_s < 0:
+            raise ValueError(f"clock {name}: refit_s must be >= 0, got {refit_s}")
         self.name = name
         self.reference = reference
         self._bin_ns = int(bin_s * 1e9)
@@ -322,6 +332,7 @@ class ClockEstimator:
         self._last_x: int | None = None
         self._fit: tuple[int, int, float] | None = None  # (x0 abs, y0 abs, slope) of the latest window
         self._fit_bins = -1
+        self._refit_bins = max(1, round(refit_s / bin_s))
 
     @property
     def n(self) -> int:
@@ -426,20 +437,35 @@ class ClockEstimator:
     def fit(self) -> tuple[int, int, float] | None:
         """The latest window's line as (device x, reference y at x, slope dy/dx), or None without data."""
         with self._lock:
-            if self._n == 0:
-                return None
-            nb = len(self._bx)
-            if self._fit is not None and self._fit_bins == nb:
-                return self._fit
-            x, y = self._points()
-            assert self._x0 is not None
-            hi = float(x[-1])
-            a, b = self._window_line(x, y, hi - self._window_ns, hi)
-            xr = int(x[-1])
-            fit = (self._x0 + xr, self._x0 + xr + self._y_base + round(a + b * xr), 1.0 + b)
-            self._fit = fit
-            self._fit_bins = nb
-            return fit
+            return self._current_fit()
+
+    def add_to_ref(self, device_ns: int, ref_ns: int) -> int:
+        """:meth:`add` the pair, then :meth:`to_ref` of its device time (one lock for both)."""
+        with self._lock:
+            self._add(int(device_ns), int(ref_ns) - self._min_latency)
+            f = self._current_fit()
+        assert f is not None
+        x, y, slope = f
+        return y + round((device_ns - x) * slope)
+
+    def _current_fit(self) -> tuple[int, int, float] | None:
+        if self._n == 0:
+            return None
+        nb = len(self._bx)
+        fit = self._fit
+        if fit is not None:
+            new = nb - self._fit_bins
+            if new == 0 or (new < self._refit_bins and nb >= 4 * self._refit_bins):
+                return fit
+        x, y = self._points()
+        assert self._x0 is not None
+        hi = float(x[-1])
+        a, b = self._window_line(x, y, hi - self._window_ns, hi)
+        xr = int(x[-1])
+        fit = (self._x0 + xr, self._x0 + xr + self._y_base + round(a + b * xr), 1.0 + b)
+        self._fit = fit
+        self._fit_bins = nb
+        return fit
 
     def to_ref(self, device_ns: int) -> int | None:
         """Reference time of a device time from the latest fit (None before any pair)."""
@@ -724,11 +750,15 @@ class Timebase:
     - ``leap_seconds``: GPS − UTC from the receiver's TIME log (``set_leap_seconds``); until it is
       known, :meth:`gps_to_utc` raises and :meth:`host_to_utc` returns the host time unchanged;
     - ``daq``: DAQ sample index → GPS maps from :func:`align_sync_pulses` (``set_daq``).
+
+    ``window_s`` and ``refit_s`` go to every :class:`ClockEstimator`.
     """
 
-    def __init__(self, *, reference_receiver: str | None = None, window_s: float = 120.0) -> None:
+    def __init__(self, *, reference_receiver: str | None = None, window_s: float = 120.0, refit_s: float = 2.0,
+                 ) -> None:
         self._lock = threading.Lock()
         self._window_s = window_s
+        self._refit_s = refit_s
         self._gnss: dict[str, ClockEstimator] = {}
         self._clocks: dict[str, ClockEstimator] = {}
         self._daq: dict[str, SyncFit] = {}
@@ -739,7 +769,8 @@ class Timebase:
         with self._lock:
             est = self._gnss.get(receiver)
             if est is None:
-                est = ClockEstimator(f"gnss:{receiver}", reference="host", window_s=self._window_s)
+                est = ClockEstimator(f"gnss:{receiver}", reference="host", window_s=self._window_s,
+                                     refit_s=self._refit_s)
                 self._gnss[receiver] = est
                 if self._reference is None:
                     self._reference = receiver
@@ -749,7 +780,7 @@ class Timebase:
         with self._lock:
             est = self._clocks.get(name)
             if est is None:
-                est = ClockEstimator(name, reference="host", window_s=self._window_s)
+                est = ClockEstimator(name, reference="host", window_s=self._window_s, refit_s=self._refit_s)
                 self._clocks[name] = est
             return est
 
@@ -786,9 +817,11 @@ class Timebase:
 
     def device_to_utc(self, clock: str, device_ns: int, host_ns: int | None = None) -> int:
         """Common time of a device-stamped event; ``host_ns`` (its receive time) also feeds the estimator."""
-        est = self.clock(clock)
+        est = self._clocks.get(clock)  # runs per CAN frame: the lock only to create the estimator
+        if est is None:
+            est = self.clock(clock)
         if host_ns is not None:
-            est.add(device_ns, host_ns)
+            return self.host_to_utc(est.add_to_ref(device_ns, host_ns))
         host = est.to_ref(device_ns)
         return self.host_to_utc(host if host is not None else device_ns)
 

@@ -2,7 +2,8 @@
 
 From a :class:`~sim_devices.vehicle.truth.GroundTruth` it produces the messages of
 ``sim_devices/data/vsc_sim.dbc`` at their DBC cycle times (each message with its own phase and
-a little transmit jitter), encoded with cantools, with rolling counters and AUTOSAR CRC-8H2F
+a little transmit jitter), encoded as cantools encodes them (all frames of a message at once, from
+the DBC's bit layout: the ECU thread then only sends), with rolling counters and AUTOSAR CRC-8H2F
 checksums (``drivers.can.checks``, algorithm ``vw_mqb_crc8``):
 
 - ``ESC_SensorCluster`` (10 ms): yaw rate, lateral and longitudinal acceleration as a MEMS
@@ -33,7 +34,6 @@ deterministic given ``VscEcuConfig.seed``.
 
 from __future__ import annotations
 
-import heapq
 import importlib.resources
 import logging
 import math
@@ -662,8 +662,50 @@ def _invalid_step() -> EstimatorStep:
 # --- encoding ----------------------------------------------------------------------------------
 
 
+_U64 = np.uint64
+
+
+@dataclass(frozen=True, slots=True)
+class _SignalLayout:
+    """Where one signal's raw bits go in the payload, and its conversion (from the DBC)."""
+
+    name: str
+    shift: int
+    """Bit position of the raw value's LSB: in the little-endian integer of the payload for Intel
+    signals, in the big-endian integer for Motorola ones."""
+    big_endian: bool
+    length: int
+    signed: bool
+    scale: float
+    offset: float
+    minimum: float | None
+    maximum: float | None
+    choices: frozenset[int]
+    """Raw values of the signal's value table (cantools skips the range check for them)."""
+    mux_ids: frozenset[int] | None
+    """Multiplexer values that select this signal (None: always present)."""
+
+
+def _payload_bits(lay: _SignalLayout, length: int) -> int:
+    """The bits a signal occupies, as a mask on the little-endian integer of the payload."""
+    if not lay.big_endian:
+        return ((1 << lay.length) - 1) << lay.shift
+    mask = 0
+    for pos in range(lay.shift, lay.shift + lay.length):  # positions in the big-endian integer
+        mask |= 1 << (8 * (length - 1 - pos // 8) + pos % 8)
+    return mask
+
+
 class _Encoder:
-    """Encodes one message's rows with cantools, then its rolling counter and checksum."""
+    """Encodes one message's rows, its rolling counter and its checksum, all rows at once.
+
+    Gives the bytes ``cantools``' ``Message.encode(values, scaling=True, padding=False, strict=True)``
+    gives row by row (tests hold the two to byte equality), with the range check done once per
+    message over all rows: the values come from the simulator, so nothing is checked per frame.
+    Integer signals of messages up to 8 bytes with at most one multiplexer are packed with numpy from
+    the signals' bit layout; anything else (float signals, CAN FD lengths, nested multiplexing) is
+    encoded row by row with cantools.
+    """
 
     def __init__(self, message: DbcMessage, algorithm: ChecksumAlgorithm | None) -> None:
         self.message = message
@@ -678,27 +720,190 @@ class _Encoder:
             if sig.byte_order != "little_endian" or sig.start != 0 or sig.length != 8:
                 raise SimulationError(f"simulated VSC ECU: {message.name}.CHECKSUM must be byte 0 (Intel, 8 bits)")
         self.count = 0
+        self._mux_name: str | None = next((s.name for s in message.signals if s.is_multiplexer), None)
         self._mux_signals: dict[int, list[str]] = {}
         if message.is_multiplexed():
             for sig in message.signals:
                 for mux_id in sig.multiplexer_ids or ():
                     self._mux_signals.setdefault(mux_id, []).append(sig.name)
+        self._layouts = self._vector_layouts(message)
+
+    def _vector_layouts(self, message: DbcMessage) -> list[_SignalLayout] | None:
+        """The signals' layouts when numpy can pack the message, else None (cantools row by row)."""
+        length = int(message.length)
+        if length > 8 or sum(1 for s in message.signals if s.is_multiplexer) > 1:
+            return None
+        layouts = []
+        for s in message.signals:
+            if s.conversion.is_float or s.length > 64 or s.length < 1:
+                return None
+            if s.multiplexer_signal is not None and s.multiplexer_signal != self._mux_name:
+                return None
+            if s.byte_order == "big_endian":
+                msb = 8 * (s.start // 8) + (7 - s.start % 8)  # cantools' start_bit(): MSB, counted from byte 0 bit 7
+                shift = 8 * length - msb - s.length
+            else:
+                shift = s.start
+            if shift < 0 or shift + s.length > 8 * length:
+                return None
+            choices = frozenset(int(k) for k in (s.conversion.choices or {}))
+            mux_ids = None if s.multiplexer_ids is None else frozenset(int(i) for i in s.multiplexer_ids)
+            layouts.append(_SignalLayout(
+                s.name, shift, s.byte_order == "big_endian", int(s.length), bool(s.is_signed), float(s.scale),
+                float(s.offset), None if s.minimum is None else float(s.minimum),
+                None if s.maximum is None else float(s.maximum), choices, mux_ids,
+            ))
+        pages: list[frozenset[int] | None] = [None, *(frozenset({i}) for i in self._mux_signals)]
+        for page in pages:  # signals that share bits cannot both be encoded (cantools fails on them too)
+            used = 0
+            for lay in layouts:
+                if page is not None and lay.mux_ids is not None and not (lay.mux_ids & page):
+                    continue
+                if page is None and lay.mux_ids is not None:
+                    continue
+                bits = _payload_bits(lay, length)
+                if used & bits:
+                    raise SimulationError(f"simulated VSC ECU: {message.name}.{lay.name} overlaps another signal")
+                used |= bits
+        return layouts
 
     def encode(self, values: dict[str, float]) -> bytes:
-        message = self.message
-        if self._mux_signals:
-            mux_name = next(s.name for s in message.signals if s.is_multiplexer)
-            page = int(values[mux_name])
-            values = {mux_name: page, **{k: values[k] for k in self._mux_signals.get(page, [])}}
+        """One row (advances the rolling counter by one)."""
+        row = {k: np.asarray([v], dtype=np.float64) for k, v in values.items()}
+        return bytes(self.encode_many(row, 1)[0])
+
+    def encode_many(self, signals: Mapping[str, FloatArray], n: int) -> npt.NDArray[np.uint8]:
+        """``n`` rows of physical values (one array per signal) → ``(n, length)`` payload bytes.
+
+        The rolling counter continues from the previous call. Raises SimulationError naming the
+        message and signal for a missing signal or a value the DBC cannot carry.
+        """
+        values = {k: np.asarray(v, dtype=np.float64).reshape(-1) for k, v in signals.items()}
+        counter = (self.count + np.arange(n, dtype=np.int64)) % 16
+        self.count += n
         if self.counter is not None:
-            values[self.counter] = self.count % 16
-            self.count += 1
+            values[self.counter] = counter.astype(np.float64)
         if self.checksum is not None:
-            values[self.checksum] = 0
-        data = bytearray(message.encode(values, scaling=True, padding=False, strict=True))
+            values[self.checksum] = np.zeros(n)
+        for k, v in values.items():
+            if v.size != n:
+                raise SimulationError(f"simulated VSC ECU: {self.message.name}.{k} has {v.size} values for {n} frames")
+        data = self._pack(values, n) if self._layouts is not None else self._pack_cantools(values, n)
         if self.algorithm is not None:
-            data[0] = self.algorithm.compute(message.frame_id, bytes(data))
-        return bytes(data)
+            data[:, 0] = self.algorithm.compute_many(self.message.frame_id, data).astype(np.uint8)
+        return data
+
+    def _pack(self, values: Mapping[str, FloatArray], n: int) -> npt.NDArray[np.uint8]:
+        message = self.message
+        assert self._layouts is not None
+        length = int(message.length)
+        page: npt.NDArray[np.int64] | None = None
+        if self._mux_name is not None:
+            page = self._raw(self._layout(self._mux_name), values, np.ones(n, dtype=bool))
+            unknown = ~np.isin(page, list(self._mux_signals))
+            if unknown.any():
+                raise SimulationError(f"simulated VSC ECU: {message.name}.{self._mux_name} = {int(page[unknown][0])} "
+                                      f"selects no signals (pages {sorted(self._mux_signals)})")
+        le = np.zeros(n, dtype=_U64)
+        be = np.zeros(n, dtype=_U64)
+        for lay in self._layouts:
+            rows = np.ones(n, dtype=bool) if lay.mux_ids is None or page is None else np.isin(page, list(lay.mux_ids))
+            if not rows.any():
+                continue
+            raw = np.where(rows, self._raw(lay, values, rows), 0)
+            mask = _U64((1 << lay.length) - 1)
+            bits = (raw.astype(_U64) & mask) << _U64(lay.shift)  # two's complement by the wrap of the cast
+            if lay.big_endian:
+                be |= bits
+            else:
+                le |= bits
+        out = le.astype("<u8").view(np.uint8).reshape(n, 8)[:, :length]
+        if self._layouts and any(lay.big_endian for lay in self._layouts):
+            be_bytes = (be << _U64(8 * (8 - length))).astype(">u8").view(np.uint8).reshape(n, 8)[:, :length]
+            out = out | be_bytes
+        return np.ascontiguousarray(out, dtype=np.uint8)
+
+    def _layout(self, name: str) -> _SignalLayout:
+        assert self._layouts is not None
+        return next(lay for lay in self._layouts if lay.name == name)
+
+    def _raw(self, lay: _SignalLayout, values: Mapping[str, FloatArray], rows: npt.NDArray[np.bool_]
+             ) -> npt.NDArray[np.int64]:
+        """Raw integers of one signal (rows outside ``rows`` are not checked and come out as 0)."""
+        where = f"simulated VSC ECU: {self.message.name}.{lay.name}"
+        v = values.get(lay.name)
+        if v is None:
+            raise SimulationError(f"{where}: no values for this signal")
+        v = np.where(rows, v, lay.offset)
+        if not np.isfinite(v).all():
+            raise SimulationError(f"{where}: non-finite value")
+        raw = np.round((v - lay.offset) / lay.scale).astype(np.int64)
+        check = rows & ~np.isin(raw, list(lay.choices)) if lay.choices else rows
+        tol = abs(lay.scale) * 1e-6
+        if lay.minimum is not None and (check & (v < lay.minimum - tol)).any():
+            raise SimulationError(f"{where}: value {float(v[check & (v < lay.minimum - tol)][0])} below the DBC "
+                                  f"minimum {lay.minimum}")
+        if lay.maximum is not None and (check & (v > lay.maximum + tol)).any():
+            raise SimulationError(f"{where}: value {float(v[check & (v > lay.maximum + tol)][0])} above the DBC "
+                                  f"maximum {lay.maximum}")
+        lo, hi = (-(1 << (lay.length - 1)), (1 << (lay.length - 1)) - 1) if lay.signed else (0, (1 << lay.length) - 1)
+        if lay.length < 64 and ((raw < lo) | (raw > hi)).any():
+            raise SimulationError(f"{where}: raw value outside {lay.length}-bit range [{lo}, {hi}]")
+        return np.asarray(raw, dtype=np.int64)
+
+    def _pack_cantools(self, values: Mapping[str, FloatArray], n: int) -> npt.NDArray[np.uint8]:
+        message = self.message
+        out = np.zeros((n, int(message.length)), dtype=np.uint8)
+        for i in range(n):
+            row = {k: float(v[i]) for k, v in values.items()}
+            if self._mux_signals:
+                assert self._mux_name is not None
+                page = int(row[self._mux_name])
+                row = {self._mux_name: page, **{k: row[k] for k in self._mux_signals.get(page, [])}}
+            try:
+                encoded = message.encode(row, scaling=True, padding=False, strict=True)
+            except (ValueError, KeyError) as exc:  # cantools' EncodeError is a ValueError
+                raise SimulationError(f"simulated VSC ECU: {message.name} frame {i}: {exc}") from exc
+            out[i, : len(encoded)] = np.frombuffer(encoded, dtype=np.uint8)
+        return out
+
+
+@dataclass(frozen=True, slots=True)
+class _FrameTable:
+    """Every frame of the drive in transmit order: time (s from the truth's start), identifier, payload."""
+
+    t: FloatArray
+    frame_id: npt.NDArray[np.int64]
+    payload: list[bytes]
+
+
+def _frame_table(out: EcuOutputs, cfg: VscEcuConfig, db: Database) -> _FrameTable:
+    """Encode all messages and merge them in time order (ties: identifier, name, row)."""
+    ts: list[FloatArray] = []
+    ids: list[npt.NDArray[np.int64]] = []
+    ranks: list[npt.NDArray[np.int64]] = []
+    rows: list[npt.NDArray[np.int64]] = []
+    payload: list[bytes] = []
+    for rank, name in enumerate(sorted(out.messages)):
+        series = out.messages[name]
+        message = db.get_message_by_name(name)
+        algo_name = cfg.checksums.get(name)
+        algorithm = get_checksum(algo_name, where=f"VscEcuConfig.checksums.{name}") if algo_name else None
+        n = int(series.t.size)
+        data = _Encoder(message, algorithm).encode_many(series.signals, n)
+        ts.append(np.asarray(series.t, dtype=np.float64))
+        ids.append(np.full(n, int(message.frame_id), dtype=np.int64))
+        ranks.append(np.full(n, rank, dtype=np.int64))
+        rows.append(np.arange(n, dtype=np.int64))
+        blob = data.tobytes()
+        width = data.shape[1]
+        payload.extend(blob[k : k + width] for k in range(0, n * width, width))
+    if not ts:
+        return _FrameTable(np.zeros(0), np.zeros(0, dtype=np.int64), [])
+    t = np.concatenate(ts)
+    fid = np.concatenate(ids)
+    order = np.lexsort((np.concatenate(rows), np.concatenate(ranks), fid, t))
+    return _FrameTable(t[order], fid[order], [payload[k] for k in order.tolist()])
 
 
 def frames(
@@ -714,20 +919,8 @@ def frames(
     cfg = config or VscEcuConfig()
     db = db or load_dbc(vsc_sim_dbc_path())
     out = outputs or simulate_ecu(truth, cfg, db)
-
-    def one(series: MessageSeries) -> Iterator[tuple[float, int, str, int]]:
-        for i, t in enumerate(series.t):
-            yield float(t), db.get_message_by_name(series.name).frame_id, series.name, i
-
-    encoders: dict[str, _Encoder] = {}
-    for name in out.messages:
-        algo_name = cfg.checksums.get(name)
-        algorithm = get_checksum(algo_name, where=f"VscEcuConfig.checksums.{name}") if algo_name else None
-        encoders[name] = _Encoder(db.get_message_by_name(name), algorithm)
-    for t, frame_id, name, i in heapq.merge(*(one(s) for s in out.messages.values())):
-        series = out.messages[name]
-        values = {k: float(v[i]) for k, v in series.signals.items()}
-        data = encoders[name].encode(values)
+    table = _frame_table(out, cfg, db)
+    for t, frame_id, data in zip(table.t.tolist(), table.frame_id.tolist(), table.payload, strict=True):
         yield (
             t,
             can.Message(
@@ -738,6 +931,33 @@ def frames(
                 dlc=len(data),
             ),
         )
+
+
+_new_message = can.Message.__new__
+
+
+class _SentFrame(can.Message):
+    """A frame the ECU sends: python-can's virtual bus deep-copies every frame for every receiver,
+    and ``Message.__deepcopy__`` (generic ``deepcopy`` of its payload) cost the ECU thread a third of
+    its time. The copy here is a plain :class:`can.Message` with its own copy of the payload."""
+
+    __slots__ = ()
+
+    def __deepcopy__(self, memo: dict[int, object] | None) -> can.Message:
+        m = _new_message(can.Message)
+        m.timestamp = self.timestamp
+        m.arbitration_id = self.arbitration_id
+        m.is_extended_id = self.is_extended_id
+        m.is_remote_frame = self.is_remote_frame
+        m.is_error_frame = self.is_error_frame
+        m.channel = self.channel
+        m.dlc = self.dlc
+        m.data = bytearray(self.data)
+        m.is_fd = self.is_fd
+        m.is_rx = self.is_rx
+        m.bitrate_switch = self.bitrate_switch
+        m.error_state_indicator = self.error_state_indicator
+        return m
 
 
 # --- the running ECU ---------------------------------------------------------------------------
@@ -773,6 +993,7 @@ class VscEcu:
         self._db = db or load_dbc(vsc_sim_dbc_path())
         self.truth = truth
         self.outputs = outputs if outputs is not None else simulate_ecu(truth, self.config, self._db)
+        self._table = _frame_table(self.outputs, self.config, self._db)
         self._bus = bus
         self._clock = clock
         self._t0_ns = t0_ns
@@ -822,15 +1043,20 @@ class VscEcu:
         Raises:
             can.CanError: the bus refused a frame.
         """
-        for t, msg in frames(self.truth, self.config, outputs=self.outputs, db=self._db):
-            due_ns = self._t0_ns + round(t * 1e9)
-            if not self._clock.sleep_until_ns(due_ns, self._stop):
+        table = self._table
+        clock = self._clock
+        stop = self._stop
+        send = self._bus.send
+        max_lag = self._max_lag_ns
+        due = (self._t0_ns + np.round(table.t * 1e9).astype(np.int64)).tolist()
+        for due_ns, frame_id, data in zip(due, table.frame_id.tolist(), table.payload, strict=True):
+            if not clock.sleep_until_ns(due_ns, stop):
                 return
-            if self._clock.now_ns() - due_ns > self._max_lag_ns:
+            if clock.now_ns() - due_ns > max_lag:
                 self.frames_skipped += 1
                 continue
-            msg.timestamp = due_ns / 1e9
-            self._bus.send(msg)
+            send(_SentFrame(timestamp=due_ns / 1e9, arbitration_id=frame_id, is_extended_id=False, data=data,
+                            dlc=len(data)))
             self.frames_sent += 1
         self.finished.set()
 

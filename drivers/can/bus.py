@@ -580,6 +580,10 @@ def _frame_bit_times_reference(
     return arb_bits + data_bits, 0
 
 
+FrameDuration = Callable[[Any], float]
+"""Bus time (s) of a frame from the description handed to :meth:`BusLoadMeter.add_frame`."""
+
+
 class BusLoadMeter:
     """Frames/s, error frames/s and bus load over a sliding window of frame times.
 
@@ -587,35 +591,50 @@ class BusLoadMeter:
     frames in USB batches, so host times would show bursts that the bus never had) and its
     duration on the wire in seconds. Rates are taken over the frames inside the last ``window_s``:
     ``(n − 1) / (t_last − t_first)``; the load is the mean frame duration times that rate.
+
+    :meth:`add_frame` defers the duration: ``duration_of(frame)`` runs in :meth:`rates`, only for
+    the frames still in the window then (computing the stuff bits of every frame was a tenth of a
+    CAN reader thread's time; with statistics once a second and a clock running faster than the
+    window, most frames leave the window unmeasured).
     """
 
-    def __init__(self, window_s: float = 1.0) -> None:
+    def __init__(self, window_s: float = 1.0, duration_of: FrameDuration | None = None) -> None:
         if window_s <= 0:
             raise ValueError(f"bus-load window must be > 0 s, got {window_s}")
         self.window_ns = int(window_s * 1e9)
-        self._frames: deque[tuple[int, float, bool]] = deque()
-        self._busy_s = 0.0
+        self._duration_of = duration_of
+        # [t_ns, duration_s or None (not computed yet), is_error, frame or None]
+        self._frames: deque[list[Any]] = deque()
         self._errors = 0
 
     def reset(self) -> None:
         """Forget the window (after a gap: times on either side are not comparable)."""
         self._frames.clear()
-        self._busy_s = 0.0
         self._errors = 0
 
     def add(self, t_ns: int, duration_s: float, is_error: bool = False) -> None:
         """Record one frame at ``t_ns`` that took ``duration_s`` of bus time."""
-        if self._frames and t_ns < self._frames[-1][0]:
+        self._push([t_ns, duration_s, is_error, None])
+
+    def add_frame(self, t_ns: int, frame: object, is_error: bool = False) -> None:
+        """Record one frame at ``t_ns`` whose bus time ``duration_of(frame)`` gives when it is needed."""
+        if self._duration_of is None:
+            raise ValueError("BusLoadMeter.add_frame needs a meter built with duration_of")
+        self._push([t_ns, None, is_error, frame])
+
+    def _push(self, entry: list[Any]) -> None:
+        t_ns = entry[0]
+        frames = self._frames
+        if frames and t_ns < frames[-1][0]:
             # a clock that stepped back (adapter reset) starts a new window
             self.reset()
-        self._frames.append((t_ns, duration_s, is_error))
-        self._busy_s += duration_s
-        self._errors += int(is_error)
+        frames.append(entry)
+        if entry[2]:
+            self._errors += 1
         cutoff = t_ns - self.window_ns
-        while self._frames and self._frames[0][0] <= cutoff:
-            _, d, e = self._frames.popleft()
-            self._busy_s -= d
-            self._errors -= int(e)
+        while frames[0][0] <= cutoff:
+            if frames.popleft()[2]:
+                self._errors -= 1
 
     def rates(self) -> tuple[float, float, float]:
         """``(frames_per_s, error_frames_per_s, busy_fraction)`` over the window (zeros if < 2 frames)."""
@@ -627,7 +646,15 @@ class BusLoadMeter:
             return 0.0, 0.0, 0.0
         rate = (n - 1) / span_s
         error_rate = rate * self._errors / n
-        busy = max(self._busy_s, 0.0) / n * rate
+        busy_s = 0.0
+        for entry in self._frames:
+            d = entry[1]
+            if d is None:
+                assert self._duration_of is not None
+                d = entry[1] = self._duration_of(entry[3])
+                entry[3] = None
+            busy_s += d
+        busy = max(busy_s, 0.0) / n * rate
         return rate, error_rate, busy
 
 
@@ -748,7 +775,7 @@ class CanBusSession:
         self._thread: threading.Thread | None = None
         self._bus: can.BusABC | None = None
         self._lock = threading.Lock()
-        self._meter = BusLoadMeter(stats_window_s)
+        self._meter = BusLoadMeter(stats_window_s, self._frame_duration)
         self._state = BusState.DISCONNECTED
         self._frames_total = 0
         self._errors_total = 0
@@ -838,6 +865,21 @@ class CanBusSession:
 
     # -- internals --
 
+    def _frame_duration(self, frame: tuple[int, bool, bytes, int, bool, bool, bool]) -> float:
+        """Bus time (s) of a data or remote frame described as in :meth:`_deliver` (needs the bitrate)."""
+        arbitration_id, is_extended, data, dlc, is_remote, is_fd, brs = frame
+        bitrate = self.config.bitrate
+        assert bitrate is not None
+        if is_fd or is_remote:
+            nominal, fast = frame_bit_times(arbitration_id, is_extended, data, dlc=dlc, is_remote=is_remote,
+                                            is_fd=is_fd, bitrate_switch=brs)
+        else:
+            nominal, fast = frame_bit_times(arbitration_id, is_extended, data, dlc=dlc)
+        duration_s = nominal / bitrate
+        if fast:
+            duration_s += fast / (self.config.data_bitrate or bitrate)
+        return duration_s
+
     def _emit(self, event: BusEvent) -> None:
         if self._on_event is not None:
             self._on_event(event)
@@ -916,7 +958,7 @@ class CanBusSession:
                     reported = _state_from_python_can(bus)
                     if reported is not None:
                         self._set_state(reported, now)
-                if self.state is BusState.BUS_OFF:
+                if self._state is BusState.BUS_OFF:  # this thread's own read: no lock per frame
                     raise _LostError("controller is bus-off")
             except _LostError as lost:
                 if not self._recover(lost.reason):
@@ -954,24 +996,19 @@ class CanBusSession:
         is_extended = bool(msg.is_extended_id)
         frame = _new_frame(device_ns, now_ns, arbitration_id, is_extended, is_fd, dlc, data, flags, self._source,
                            self._channel)
-        duration_s = 0.0
-        bitrate = self.config.bitrate
-        if not is_error and bitrate is not None:
-            if is_fd or msg.is_remote_frame:
-                nominal, fast = frame_bit_times(arbitration_id, is_extended, data, dlc=dlc,
-                                                is_remote=bool(msg.is_remote_frame), is_fd=is_fd,
-                                                bitrate_switch=bool(msg.bitrate_switch))
-            else:
-                nominal, fast = frame_bit_times(arbitration_id, is_extended, data, dlc=dlc)
-            duration_s = nominal / bitrate
-            if fast:
-                duration_s += fast / (self.config.data_bitrate or bitrate)
         with self._lock:
             self._frames_total += 1
             self._errors_total += is_error
             self._last_frame_ns = now_ns
-            # error reports carry no bus time of their own (the destroyed frame is unknown)
-            self._meter.add(device_ns if device_ns is not None else now_ns, duration_s, is_error)
+            t_meter = device_ns if device_ns is not None else now_ns
+            if is_error or self.config.bitrate is None:
+                # error reports carry no bus time of their own (the destroyed frame is unknown)
+                self._meter.add(t_meter, 0.0, is_error)
+            elif is_fd or msg.is_remote_frame:
+                self._meter.add_frame(t_meter, (arbitration_id, is_extended, data, dlc, bool(msg.is_remote_frame),
+                                                is_fd, bool(msg.bitrate_switch)))
+            else:
+                self._meter.add_frame(t_meter, (arbitration_id, is_extended, data, dlc, False, False, False))
         if is_error:
             counters = error_counters_from_error_frame(msg)
             if counters is not None:

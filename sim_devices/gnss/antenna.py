@@ -8,7 +8,9 @@ its velocity is that point's rigid-body velocity including the roll rate:
     y_r = y cos φ − z sin φ,   z_r = y sin φ + z cos φ,   ẏ_r = −z_r φ̇,   ż_r = y_r φ̇
     v_body = (v_x − r y_r,  v_y + r x + ẏ_r),  then rotated by the yaw ψ into ENU.
 
-Outside the recorded drive the car stands still at its first or last position.
+Outside the recorded drive the car stands still at its first or last position. The ENU → geodetic
+conversion is :class:`~sim_devices.gnss.geodesy.EnuOrigin` (pymap3d's formulas, scalar: it runs at
+every solution epoch of every rover).
 """
 
 from __future__ import annotations
@@ -18,8 +20,8 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-import pymap3d
 
+from sim_devices.gnss.geodesy import EnuOrigin
 from sim_devices.vehicle.truth import GroundTruth
 
 __all__ = ["AntennaState", "AntennaTrack", "FixedAntenna", "TruthAntenna"]
@@ -66,22 +68,32 @@ class TruthAntenna:
         cg = truth.meta.get("cg_height_m", 0.0)
         self._cg_height = float(cg) if isinstance(cg, int | float) else 0.0
         self._t = truth.t
-        self._cols = np.stack([np.asarray(getattr(truth, name), dtype=np.float64) for name in self._FIELDS])
+        self._t0 = float(truth.t[0])
+        self._t1 = float(truth.t[-1])
+        # one row per truth sample: the two rows around a time come out in one slice
+        self._rows = np.ascontiguousarray(
+            np.stack([np.asarray(getattr(truth, name), dtype=np.float64) for name in self._FIELDS], axis=1)
+        )
+        self._origin = EnuOrigin(truth.lat0_deg, truth.lon0_deg, truth.h0_m)
 
     def enu(self, t_s: float) -> tuple[float, float, float, float, float, float]:
         """(east, north, up, v_east, v_north, v_up) of the antenna at truth time ``t_s``."""
-        t0 = float(self._t[0])
-        t1 = float(self._t[-1])
+        t0 = self._t0
+        t1 = self._t1
         moving = t0 <= t_s <= t1
         tc = min(max(t_s, t0), t1)
-        i = int(np.searchsorted(self._t, tc, side="right")) - 1
-        i = min(max(i, 0), len(self._t) - 2) if len(self._t) > 1 else 0
-        if len(self._t) > 1:
-            w = (tc - float(self._t[i])) / float(self._t[i + 1] - self._t[i])
-            row = self._cols[:, i] * (1.0 - w) + self._cols[:, i + 1] * w
+        n = len(self._t)
+        if n > 1:
+            i = int(np.searchsorted(self._t, tc, side="right")) - 1
+            i = min(max(i, 0), n - 2)
+            ta, tb = self._t[i : i + 2].tolist()
+            w = (tc - ta) / (tb - ta)
+            lo, hi = self._rows[i : i + 2].tolist()
+            # the same IEEE operations as on the numpy rows, on Python floats
+            row = [a * (1.0 - w) + b * w for a, b in zip(lo, hi, strict=True)]
         else:
-            row = self._cols[:, 0]
-        east, north, yaw, roll, vx, vy, r, p = (float(v) for v in row)
+            row = self._rows[0].tolist()
+        east, north, yaw, roll, vx, vy, r, p = row
         if not moving:
             vx = vy = r = p = 0.0
         x, y, z = self.lever_arm
@@ -98,6 +110,5 @@ class TruthAntenna:
 
     def state(self, t_s: float) -> AntennaState:
         e, n, u, ve, vn, vu = self.enu(t_s)
-        tr = self.truth
-        lat, lon, h = pymap3d.enu2geodetic(e, n, u, tr.lat0_deg, tr.lon0_deg, tr.h0_m)
-        return AntennaState(float(lat), float(lon), float(h), ve, vn, vu)
+        lat, lon, h = self._origin.to_geodetic(e, n, u)
+        return AntennaState(lat, lon, h, ve, vn, vu)

@@ -188,6 +188,22 @@ class GnssErrorModel:
         self._t_ns: int | None = None
         p = self.params
         self._common = CommonModeError(p.common_seed, p.correlation_time_s) if p.common_fraction > 0.0 else None
+        self._sigmas: dict[PositionType, tuple[FloatArray, FloatArray]] = {}
+        self._sigmas_of = self.params
+
+    def _sigma(self, pos_type: PositionType) -> tuple[FloatArray, FloatArray]:
+        """Position and velocity 1σ (ENU) of a solution type, built once (read-only: every epoch shares them)."""
+        if self._sigmas_of is not self.params:  # the parameters were replaced
+            self._sigmas.clear()
+            self._sigmas_of = self.params
+        found = self._sigmas.get(pos_type)
+        if found is None:
+            noise = self.params.noise_for(pos_type)
+            found = (noise.position_sigma_enu, noise.velocity_sigma_enu)
+            for a in found:
+                a.flags.writeable = False
+            self._sigmas[pos_type] = found
+        return found
 
     def sample(self, t_gps_ns: int, pos_type: PositionType) -> SolutionError:
         """Errors of the solution at GPS time ``t_gps_ns`` (ns) of type ``pos_type``."""
@@ -200,14 +216,12 @@ class GnssErrorModel:
             self._t_ns = t_gps_ns
         white = self._rng.standard_normal(3)
         vel_white = self._rng.standard_normal(3)
-        noise = p.noise_for(pos_type)
-        sigma = noise.position_sigma_enu
+        sigma, vsigma = self._sigma(pos_type)
         unit = math.sqrt(p.correlated_fraction) * self._gm + math.sqrt(1.0 - p.correlated_fraction) * white
         if self._common is not None:
             # one week of GPS time keeps the float argument accurate (ω·t ≲ 1e6 rad)
             common = self._common.at((t_gps_ns % (7 * 86400 * NS_PER_S)) / NS_PER_S)
             unit = math.sqrt(1.0 - p.common_fraction) * unit + math.sqrt(p.common_fraction) * common
-        vsigma = noise.velocity_sigma_enu
         return SolutionError(sigma * unit, sigma, vsigma * vel_white, vsigma)
 
 
