@@ -159,12 +159,16 @@ def _finite(obj: Any) -> Any:
     return obj
 
 
+_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_json_default)
+"""One encoder for every record (json.dumps with options builds a new one per call; this runs per CAN frame)."""
+
+
 def encode_json(obj: Any) -> bytes:
     """Compact UTF-8 JSON; numpy scalars/arrays and enums are converted, NaN/inf become null."""
     try:
-        text = json.dumps(obj, separators=(",", ":"), allow_nan=False, default=_json_default)
+        text = _ENCODER.encode(obj)
     except ValueError:
-        text = json.dumps(_finite(obj), separators=(",", ":"), allow_nan=False, default=_json_default)
+        text = _ENCODER.encode(_finite(obj))
     return text.encode()
 
 

@@ -308,6 +308,18 @@ class CanBusConfig:
         )
 
 
+class _SocketcandFragmentFilter(logging.Filter):
+    """Drops python-can's socketcand warning for a frame split across TCP reads, which is normal on a
+    stream socket (the rest arrives with the next read) and comes hundreds of times a minute."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith("Got incomplete message")
+
+
+_SOCKETCAND_LOGGER = "can.interfaces.socketcand.socketcand"
+_socketcand_filter = _SocketcandFragmentFilter()
+
+
 def _probe_socketcand(config: CanBusConfig, timeout_s: float) -> None:
     """Fail fast when no socketcand server answers or it does not serve the channel.
 
@@ -354,6 +366,7 @@ def open_bus(config: CanBusConfig, *, probe_timeout_s: float = 1.0) -> can.BusAB
             kwargs["data_bitrate"] = config.data_bitrate
     if config.interface == "socketcand":
         _probe_socketcand(config, probe_timeout_s)
+        logging.getLogger(_SOCKETCAND_LOGGER).addFilter(_socketcand_filter)  # idempotent
     try:
         return can.Bus(interface=config.interface, channel=config.channel, **kwargs)
     except (can.CanError, OSError, ImportError, ValueError, TypeError) as exc:

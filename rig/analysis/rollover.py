@@ -55,6 +55,7 @@ true vehicle with the steering held from each issue time) next to the AR and ARX
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from collections.abc import Sequence
@@ -181,14 +182,10 @@ class RollModel:
         if not ok[0]:
             a[: int(np.argmax(ok))] = a[int(np.argmax(ok))]
         mh = self.mass_kg * (self.cg_height_m - self.roll_axis_height_m)
-        num, den, _ = signal.cont2discrete(
-            ([mh], [self.roll_inertia_kgm2, self.roll_damping_nms_per_rad, self.roll_stiffness_nm_per_rad]),
-            dt, method="bilinear",
+        b, d, zi1 = _discrete_filter(
+            (mh,), (self.roll_inertia_kgm2, self.roll_damping_nms_per_rad, self.roll_stiffness_nm_per_rad), dt
         )
-        b = np.asarray(num, dtype=float).ravel()
-        d = np.asarray(den, dtype=float).ravel()
-        zi = signal.lfilter_zi(b, d) * a[0]
-        phi = np.asarray(signal.lfilter(b, d, a, zi=zi)[0], dtype=float)
+        phi = np.asarray(signal.lfilter(b, d, a, zi=zi1 * a[0])[0], dtype=float)
         # the roll equation itself gives the roll acceleration from φ, φ̇ and a_m
         phid = np.gradient(phi, dt)
         phidd = (mh * a - self.roll_damping_nms_per_rad * phid - self.roll_stiffness_nm_per_rad * phi) / (
@@ -224,15 +221,32 @@ class RollModel:
         if not ok[0]:
             a[: int(np.argmax(ok))] = a[int(np.argmax(ok))]
         mh = self.mass_kg * (self.cg_height_m - self.roll_axis_height_m)
-        den_c = [self.roll_inertia_kgm2, self.roll_damping_nms_per_rad, self.roll_stiffness_nm_per_rad]
+        den_c = (self.roll_inertia_kgm2, self.roll_damping_nms_per_rad, self.roll_stiffness_nm_per_rad)
         out = []
-        for num_c in ([mh], [mh, 0.0]):
-            num, den, _ = signal.cont2discrete((num_c, den_c), dt, method="bilinear")
-            b = np.asarray(num, dtype=float).ravel()
-            d = np.asarray(den, dtype=float).ravel()
-            zi = signal.lfilter_zi(b, d) * a[0]
-            out.append(np.asarray(signal.lfilter(b, d, a, zi=zi)[0], dtype=float))
+        for num_c in ((mh,), (mh, 0.0)):
+            b, d, zi1 = _discrete_filter(num_c, den_c, dt)
+            out.append(np.asarray(signal.lfilter(b, d, a, zi=zi1 * a[0])[0], dtype=float))
         return out[0], out[1]
+
+
+@functools.lru_cache(maxsize=64)
+def _discrete_filter(
+    num_c: tuple[float, ...], den_c: tuple[float, ...], dt: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Bilinear discretisation (b, a) of num_c/den_c at ``dt`` and its steady state for a unit input (lfilter_zi).
+
+    Cached: the live dashboard asks for the same filter at every refresh, and each of scipy's small
+    linear solves here wakes the BLAS thread pool, which then spins on the recording's other core.
+    """
+    from scipy import signal
+
+    num, den, _ = signal.cont2discrete((list(num_c), list(den_c)), dt, method="bilinear")
+    b = np.asarray(num, dtype=float).ravel()
+    d = np.asarray(den, dtype=float).ravel()
+    zi = np.asarray(signal.lfilter_zi(b, d), dtype=float)
+    for arr in (b, d, zi):
+        arr.setflags(write=False)
+    return b, d, zi
 
 
 @dataclass(frozen=True, slots=True)

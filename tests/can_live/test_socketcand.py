@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import queue
 import socket
 import time
@@ -276,3 +277,18 @@ def test_bus_session_over_socketcand_recovers_when_the_server_comes_back(channel
         finally:
             session.stop()
             srv.stop()
+
+
+def test_open_bus_quiets_only_python_cans_split_frame_warning(server: SocketcandServer,
+                                                             caplog: pytest.LogCaptureFixture) -> None:
+    host, port = server.address
+    bus = open_bus(CanBusConfig("socketcand", "vcan0", bitrate=None, options={"host": host, "port": port}))
+    try:
+        logger = logging.getLogger("can.interfaces.socketcand.socketcand")
+        with caplog.at_level(logging.WARNING, logger=logger.name):
+            logger.warning("Got incomplete message => waiting for more data")  # a frame split across reads
+            logger.warning("Bad data: No opening < found => discarding entire buffer 'xx'")
+        texts = [r.getMessage() for r in caplog.records if r.name == logger.name]
+        assert texts == ["Bad data: No opening < found => discarding entire buffer 'xx'"]
+    finally:
+        bus.shutdown()
