@@ -125,8 +125,10 @@ def run_demo(out_dir: Path, *, fast: bool = False, config: Path | None = None) -
     return result
 
 
-DEMO_FAST_SPEED = 4.0
-"""Clock speed of ``rig demo --fast`` (the devices keep up at this rate on a loaded two-core laptop)."""
+DEMO_FAST_SPEED = 8.0
+"""Clock speed of ``rig demo --fast``. The simulated receivers and ECU run in their own process
+(``device_process``), so the recording process keeps up at this rate on a two-core laptop; with
+every device in one process the interpreter lock starves the DAQ reader and the CAN reader from 5×."""
 
 
 def _record(
