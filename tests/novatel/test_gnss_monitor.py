@@ -38,6 +38,7 @@ from rig.cli.gnss_cmd import (
 from rig.cli.main import app
 from sim_devices.gnss import SimRover, SimTimeBase
 from sim_devices.vehicle import GroundTruth, make_scenario, simulate
+from tests.sigint import ctrl_c_reaches_children
 from vsccore.angles import wrap_180, yaw_to_azimuth
 from vsccore.errors import ConfigError
 
@@ -200,10 +201,11 @@ def test_ctrl_c_stops_the_monitor_process_cleanly(rover: SimRover) -> None:
     # The gnss command group alone (importing every rig command takes seconds), in its own process,
     # so that SIGINT arrives as it does from a terminal.
     script = "import sys; from rig.cli.gnss_cmd import app; app(sys.argv[1:], prog_name='rig gnss')"
-    proc = subprocess.Popen(
-        [sys.executable, "-c", script, "monitor", rover.port_path, "--interval", "0.2"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO, text=True,
-    )
+    with ctrl_c_reaches_children():
+        proc = subprocess.Popen(
+            [sys.executable, "-c", script, "monitor", rover.port_path, "--interval", "0.2"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO, text=True,
+        )
     try:
         assert proc.stdout is not None
         deadline = time.monotonic() + 60.0

@@ -16,6 +16,7 @@ from typer.testing import CliRunner
 from rig.cli.main import app, main
 from sim_devices.ntrip_caster import NtripCaster
 from tests.relay.helpers import PtyPeer, base_epoch
+from tests.sigint import ctrl_c_reaches_children
 
 REPO = Path(__file__).resolve().parents[2]
 runner = CliRunner()
@@ -90,13 +91,14 @@ def test_ctrl_c_stops_cleanly() -> None:
     t.start()
     rover = PtyPeer().start_reader()
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "rig", "relay", "--from", f"tcp://127.0.0.1:{port}", "--to", rover.path],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        env=env,
-        cwd=REPO,
-    )
+    with ctrl_c_reaches_children():
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "rig", "relay", "--from", f"tcp://127.0.0.1:{port}", "--to", rover.path],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            env=env,
+            cwd=REPO,
+        )
     expected = b"".join(base_epoch())
     try:
         assert accepted.wait(30)
