@@ -168,19 +168,7 @@ class RollModel:
         """
         from scipy import signal
 
-        t = check_time("t_s", t_s, min_samples=2)
-        a = as_1d("ay_body_mps2", ay_body_mps2, t.size)
-        dt = float(np.median(np.diff(t)))
-        if np.max(np.abs(np.diff(t) - dt)) > 0.01 * dt:
-            raise AnalysisError("roll_from_body_ay: the time base must be uniform (resample first)")
-        ok = np.isfinite(a)
-        if not np.any(ok):
-            raise AnalysisError("roll_from_body_ay: no finite lateral acceleration")
-        idx = np.where(ok, np.arange(a.size), 0)
-        np.maximum.accumulate(idx, out=idx)
-        a = a[idx]
-        if not ok[0]:
-            a[: int(np.argmax(ok))] = a[int(np.argmax(ok))]
+        dt, a = _uniform_held("roll_from_body_ay", t_s, ay_body_mps2)
         mh = self.mass_kg * (self.cg_height_m - self.roll_axis_height_m)
         b, d, zi1 = _discrete_filter(
             (mh,), (self.roll_inertia_kgm2, self.roll_damping_nms_per_rad, self.roll_stiffness_nm_per_rad), dt
@@ -207,19 +195,7 @@ class RollModel:
         """
         from scipy import signal
 
-        t = check_time("t_s", t_s, min_samples=2)
-        a = as_1d("ay_body_mps2", ay_body_mps2, t.size)
-        dt = float(np.median(np.diff(t)))
-        if np.max(np.abs(np.diff(t) - dt)) > 0.01 * dt:
-            raise AnalysisError("roll_and_rate_from_body_ay: the time base must be uniform (resample first)")
-        ok = np.isfinite(a)
-        if not np.any(ok):
-            raise AnalysisError("roll_and_rate_from_body_ay: no finite lateral acceleration")
-        idx = np.where(ok, np.arange(a.size), 0)
-        np.maximum.accumulate(idx, out=idx)
-        a = a[idx]
-        if not ok[0]:
-            a[: int(np.argmax(ok))] = a[int(np.argmax(ok))]
+        dt, a = _uniform_held("roll_and_rate_from_body_ay", t_s, ay_body_mps2)
         mh = self.mass_kg * (self.cg_height_m - self.roll_axis_height_m)
         den_c = (self.roll_inertia_kgm2, self.roll_damping_nms_per_rad, self.roll_stiffness_nm_per_rad)
         out = []
@@ -227,6 +203,28 @@ class RollModel:
             b, d, zi1 = _discrete_filter(num_c, den_c, dt)
             out.append(np.asarray(signal.lfilter(b, d, a, zi=zi1 * a[0])[0], dtype=float))
         return out[0], out[1]
+
+
+def _uniform_held(where: str, t_s: npt.ArrayLike, ay_mps2: npt.ArrayLike) -> tuple[float, FloatArray]:
+    """(dt, acceleration with NaN samples held at the previous value, leading ones at the first finite).
+
+    Raises:
+        AnalysisError: non-uniform or too short time base, or no finite sample.
+    """
+    t = check_time("t_s", t_s, min_samples=2)
+    a = as_1d("ay_body_mps2", ay_mps2, t.size)
+    dt = float(np.median(np.diff(t)))
+    if np.max(np.abs(np.diff(t) - dt)) > 0.01 * dt:
+        raise AnalysisError(f"{where}: the time base must be uniform (resample first)")
+    ok = np.isfinite(a)
+    if not np.any(ok):
+        raise AnalysisError(f"{where}: no finite lateral acceleration")
+    idx = np.where(ok, np.arange(a.size), 0)
+    np.maximum.accumulate(idx, out=idx)
+    a = a[idx]
+    if not ok[0]:
+        a[: int(np.argmax(ok))] = a[int(np.argmax(ok))]
+    return dt, a
 
 
 @functools.lru_cache(maxsize=64)
