@@ -25,15 +25,10 @@ from drivers.can.bus import _frame_bit_times_reference, frame_bit_times
 from drivers.can.dbc import load_dbc
 from drivers.can.roles import DecodedFrame, MessageCheck, RoleDecoder, RoleMap, RoleSpec, encode_role_frame
 from tests.can_decode.conftest import XOR
+from tests.can_decode.strategies import OFFSETS, SCALES, mux_message
 
 REPO = Path(__file__).resolve().parents[2]
 _UNITS = ("1", "deg", "deg/s", "g", "km/h", "bar", "%")
-_scales = st.one_of(
-    st.integers(-7, 7).filter(lambda v: v != 0),
-    st.floats(1e-4, 1e3, allow_nan=False).flatmap(lambda v: st.sampled_from([v, -v])),
-    st.sampled_from([0.1, 0.01, 0.0075, 1.0, 1, 5]),
-)
-_offsets = st.one_of(st.integers(-1000, 1000), st.floats(-1e4, 1e4, allow_nan=False), st.just(0))
 
 
 def _same_value(a: float | int, b: float | int) -> bool:
@@ -99,7 +94,7 @@ def _signal(draw: st.DrawFn, name: str, total_bits: int, used: set[int], *, leng
     choices = None
     if not is_float and draw(st.integers(0, 4)) == 0:
         choices = {k: f"V{k}" for k in draw(st.lists(st.integers(0, min(7, (1 << n) - 1)), max_size=3, unique=True))}
-    conversion = BaseConversion.factory(scale=draw(_scales), offset=draw(_offsets),
+    conversion = BaseConversion.factory(scale=draw(SCALES), offset=draw(OFFSETS),
                                         choices=cast(Any, choices or None), is_float=is_float)
     return Signal(name=name, start=start, length=n, byte_order="big_endian" if big else "little_endian",
                   is_signed=False if is_float else draw(st.booleans()), conversion=conversion)
@@ -152,31 +147,13 @@ def test_compiled_decoder_matches_cantools_on_random_layouts(case: tuple[Databas
 
 @st.composite
 def _mux_layout(draw: st.DrawFn) -> tuple[Database, RoleMap, list[tuple[int, bytes]]]:
-    ids = st.lists(st.integers(0, 7), min_size=1, max_size=4, unique=True)
-    signals = [Signal("MUX", 0, 3, is_multiplexer=True)]
-    signals.append(Signal("NESTED", 3, 2, is_multiplexer=True, multiplexer_ids=draw(ids), multiplexer_signal="MUX"))
-    byte = 1
-    for i in range(draw(st.integers(1, 5))):
-        nbytes = draw(st.integers(1, 2))
-        if byte + nbytes > 7:
-            break
-        parent = draw(st.sampled_from(["MUX", "NESTED"]))
-        parent_ids = draw(ids) if parent == "MUX" else draw(st.lists(st.integers(0, 3), min_size=1, max_size=3))
-        big = draw(st.booleans())
-        n = draw(st.integers(1, 8 * nbytes))
-        first = 8 * byte + draw(st.integers(0, 8 * nbytes - n))
-        byte += nbytes
-        signals.append(Signal(f"P{i}", 8 * (first // 8) + 7 - first % 8 if big else first, n,
-                              byte_order="big_endian" if big else "little_endian", is_signed=draw(st.booleans()),
-                              conversion=BaseConversion.factory(scale=draw(_scales), offset=draw(_offsets)),
-                              multiplexer_ids=parent_ids, multiplexer_signal=parent))
-    signals.append(Signal("ALWAYS", 56, 8))
-    db = Database(messages=[Message(frame_id=0x321, name="MX", length=8, signals=signals, strict=False)])
-    roles = [s for s in signals if s.name.startswith("P")] + [signals[-1]]
+    message, payloads = draw(mux_message())
+    db = Database(messages=[message])
+    signals = message.signals
+    roles = [s for s in signals if s.name.startswith("P") or s.name == "ALWAYS"]
     specs = tuple(RoleSpec(role=f"r{i}", message="MX", signal=s.name, invert=draw(st.booleans()),
                            sign_signal="ALWAYS" if draw(st.booleans()) else None, sign_negative_when=1)
                   for i, s in enumerate(roles))
-    payloads = draw(st.lists(st.binary(min_size=8, max_size=8), min_size=8, max_size=40))
     return db, RoleMap(specs), [(0x321, p) for p in payloads]
 
 

@@ -14,16 +14,11 @@ from hypothesis import strategies as st
 
 from drivers.can.checks import FrameFlag
 from drivers.can.vector_decode import FrameBatch, MessageDecoder, VectorDecoder
+from tests.can_decode.strategies import OFFSETS, SCALES, mux_message
 from vsccore.errors import DecodeError
 
 _LENGTHS = [1, 2, 3, 5, 8, 8, 8, 8, 12, 16, 24, 32, 64]
 
-_scales = st.one_of(
-    st.integers(-7, 7).filter(lambda v: v != 0),
-    st.floats(1e-4, 1e3, allow_nan=False).flatmap(lambda v: st.sampled_from([v, -v])),
-    st.sampled_from([0.1, 0.01, 0.0075, 0.03125, 1.0, 1, 5]),
-)
-_offsets = st.one_of(st.integers(-1000, 1000), st.floats(-1e4, 1e4, allow_nan=False), st.just(0))
 
 
 @st.composite
@@ -39,7 +34,7 @@ def _signal(draw: st.DrawFn, index: int, length_bytes: int) -> Signal | None:
         start = 8 * (msb_lin // 8) + 7 - msb_lin % 8  # DBC sawtooth numbering of the MSB
     else:
         start = draw(st.integers(0, total - length))
-    conversion = BaseConversion.factory(scale=draw(_scales), offset=draw(_offsets), choices=None, is_float=is_float)
+    conversion = BaseConversion.factory(scale=draw(SCALES), offset=draw(OFFSETS), choices=None, is_float=is_float)
     return Signal(
         name=f"S{index}",
         start=start,
@@ -109,43 +104,8 @@ def test_matches_cantools_on_random_layouts(case: tuple[Message, list[bytes]]) -
             assert _same(float(decoded.values[signal.name][i]), float(phys[signal.name])), (signal, payload.hex())
 
 
-@st.composite
-def _mux_message(draw: st.DrawFn) -> tuple[Message, list[bytes]]:
-    ids = st.lists(st.integers(0, 7), min_size=1, max_size=4, unique=True)
-    signals = [Signal("MUX", 0, 3, is_multiplexer=True)]
-    signals.append(Signal("NESTED", 3, 2, is_multiplexer=True, multiplexer_ids=draw(ids), multiplexer_signal="MUX"))
-    byte = 1  # children get separate byte ranges (cantools cannot decode overlapping signals)
-    for i in range(draw(st.integers(1, 5))):
-        nbytes = draw(st.integers(1, 2))
-        if byte + nbytes > 7:
-            break
-        parent = draw(st.sampled_from(["MUX", "NESTED"]))
-        parent_ids = draw(ids) if parent == "MUX" else draw(st.lists(st.integers(0, 3), min_size=1, max_size=3))
-        big = draw(st.booleans())
-        length = draw(st.integers(1, 8 * nbytes))
-        first = 8 * byte + draw(st.integers(0, 8 * nbytes - length))
-        start = 8 * (first // 8) + 7 - first % 8 if big else first
-        byte += nbytes
-        signals.append(
-            Signal(
-                f"P{i}",
-                start,
-                length,
-                byte_order="big_endian" if big else "little_endian",
-                is_signed=draw(st.booleans()),
-                conversion=BaseConversion.factory(scale=draw(_scales), offset=draw(_offsets)),
-                multiplexer_ids=parent_ids,
-                multiplexer_signal=parent,
-            )
-        )
-    signals.append(Signal("ALWAYS", 56, 8))
-    message = Message(frame_id=0x321, name="MX", length=8, signals=signals, strict=False)
-    payloads = draw(st.lists(st.binary(min_size=8, max_size=8), min_size=8, max_size=40))
-    return message, payloads
-
-
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(_mux_message())
+@given(mux_message())
 def test_multiplexed_messages_match_cantools(case: tuple[Message, list[bytes]]) -> None:
     message, payloads = case
     decoded = MessageDecoder(message).decode(_as_array(payloads, 8))
