@@ -55,7 +55,7 @@ from drivers.daq import (
     SyncEdgeDetector,
 )
 from drivers.optical import OpticalSensorSpec
-from rig.config import CanConfig, DaqConfig, ReceiverConfig, SessionConfig, SimulationConfig
+from rig.config import AntennaConfig, CanConfig, DaqConfig, ReceiverConfig, SessionConfig, SimulationConfig
 from rig.dataset import Session
 from rig.recorder import RecorderOptions
 from rig.session import RecordSession, SessionSummary
@@ -99,6 +99,7 @@ __all__ = [
     "gnss_min_latency_s",
     "record_simulated",
     "timing_vs_truth",
+    "true_antenna_lever_arms",
 ]
 
 log = logging.getLogger(__name__)
@@ -429,19 +430,8 @@ class SimWorld:
         self.receivers[name] = rx
 
     def antenna_lever_arms(self) -> dict[str, tuple[float, float, float]]:
-        """True antenna positions (x, y, z) m from the CG: the configured lever arms with the baseline
-        turned by ``simulation.true_mount_offset_deg`` about antenna A.
-
-        The mounting offset is the azimuth of the baseline B → A minus the car's heading (clockwise
-        positive, as in :mod:`calibration.mount`): B moves so that B → A points that far to the right
-        of the x axis, which in ISO 8855 axes (y left) is a rotation by −offset.
-        """
-        ant = self.cfg.profile.antennas
-        delta = -math.radians(self.sim.true_mount_offset_deg)
-        dx, dy = ant.a.x_m - ant.b.x_m, ant.a.y_m - ant.b.y_m
-        c, s = math.cos(delta), math.sin(delta)
-        rx, ry = c * dx - s * dy, s * dx + c * dy
-        return {"a": (ant.a.x_m, ant.a.y_m, ant.a.z_m), "b": (ant.a.x_m - rx, ant.a.y_m - ry, ant.b.z_m)}
+        """True antenna positions of this car (see :func:`true_antenna_lever_arms`)."""
+        return true_antenna_lever_arms(self.cfg.profile.antennas, self.sim.true_mount_offset_deg)
 
     def _start_ecu(self, cc: CanConfig, clock: Clock) -> None:
         if cc.channel in self.ecus:
@@ -817,6 +807,22 @@ def _device_host_main(conn: Connection) -> None:
             with contextlib.suppress(OSError):
                 conn.send(("stopped", health))
             conn.close()
+
+
+def true_antenna_lever_arms(antennas: AntennaConfig, mount_offset_deg: float) -> dict[str, tuple[float, float, float]]:
+    """True antenna positions (x, y, z) m from the CG: the configured lever arms with the baseline
+    turned by ``mount_offset_deg`` (``simulation.true_mount_offset_deg``) about antenna A.
+
+    The mounting offset is the azimuth of the baseline B → A minus the car's heading (clockwise
+    positive, as in :mod:`calibration.mount`): B moves so that B → A points that far to the right
+    of the x axis, which in ISO 8855 axes (y left) is a rotation by −offset.
+    """
+    a, b = antennas.a, antennas.b
+    delta = -math.radians(mount_offset_deg)
+    dx, dy = a.x_m - b.x_m, a.y_m - b.y_m
+    c, s = math.cos(delta), math.sin(delta)
+    rx, ry = c * dx - s * dy, s * dx + c * dy
+    return {"a": (a.x_m, a.y_m, a.z_m), "b": (a.x_m - rx, a.y_m - ry, b.z_m)}
 
 
 def _sim_target(url: str) -> tuple[str, str | None]:

@@ -21,7 +21,7 @@ from drivers.can.dbc import load_dbc
 from drivers.can.roles import RoleMap, encode_role_frame
 from rig.config import SessionConfig, load_session
 from rig.recorder import Attachment, Recorder, RecorderOptions, session_metadata
-from rig.simworld import record_simulated
+from rig.simworld import record_simulated, true_antenna_lever_arms
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle import Drive, GroundTruth, Scenario, VehicleParams, make_scenario, simulate
 from vsccore.gpstime import gps_ns_to_unix_ns, gps_to_ns
@@ -96,16 +96,6 @@ def _utc(g: np.ndarray | int) -> np.ndarray:
     return np.asarray(g, dtype=np.int64) + gps_ns_to_unix_ns(0, LEAP)
 
 
-def true_lever_arms(cfg: SessionConfig, offset_deg: float) -> dict[str, tuple[float, float, float]]:
-    """Antenna positions with the baseline turned by the mounting offset about A (as rig.simworld does)."""
-    ant = cfg.profile.antennas
-    delta = -math.radians(offset_deg)
-    dx, dy = ant.a.x_m - ant.b.x_m, ant.a.y_m - ant.b.y_m
-    c, s = math.cos(delta), math.sin(delta)
-    rx, ry = c * dx - s * dy, s * dx + c * dy
-    return {"a": (ant.a.x_m, ant.a.y_m, ant.a.z_m), "b": (ant.a.x_m - rx, ant.a.y_m - ry, ant.b.z_m)}
-
-
 def _gm_noise(rng: np.random.Generator, n: int, sigma: float, tau_s: float, dt: float = 0.05,
               correlated_fraction: float = 0.7) -> np.ndarray:
     phi = math.exp(-dt / tau_s)
@@ -159,7 +149,7 @@ def write_truth_session(
     )
     opts = RecorderOptions(min_free_bytes=0, warn_free_bytes=0, reserve_bytes=0)
     atts = [Attachment.from_file(DBC), Attachment("vsc.roles.toml", "application/toml", ROLES.read_bytes())]
-    arms = true_lever_arms(cfg, offset_deg)
+    arms = true_antenna_lever_arms(cfg.profile.antennas, offset_deg)
     antenna_of = {r.name: r.antenna for r in cfg.receivers if r.role == "rover"}
     t_end = float(truth.t[-1])
     k = np.arange(int(t_end * 20) + 1)
