@@ -55,9 +55,7 @@ from sim_devices.vehicle.scenarios import SCENARIOS, Scenario, ScenarioContext, 
 
 P = VehicleParams()
 TRACK = 0.5 * (P.track_front_m + P.track_rear_m)
-ROLL = RollModel(P.mass_kg, P.cg_height_m, P.roll_axis_height_m,
-                 P.roll_stiffness_front_nm_per_rad + P.roll_stiffness_rear_nm_per_rad,
-                 P.roll_damping_nms_per_rad, P.roll_inertia_kgm2)
+ROLL = RollModel.from_vehicle(P)
 DEMAND = LtrDemandModel(P.wheelbase_m, P.understeer_gradient_rad_per_mps2, P.tyre_peak_mu, P.cg_height_m,
                         P.roll_axis_height_m, TRACK, ROLL.roll_gain_rad_per_mps2,
                         tuple(P.steering_ratio_swa_deg), tuple(P.steering_ratio))

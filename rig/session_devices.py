@@ -925,9 +925,7 @@ class LiveLtr:
         v = self._vehicle
         try:
             if self._model is None:
-                self._model = RollModel(v.mass_kg, v.cg_height_m, v.roll_axis_height_m,
-                                        v.roll_stiffness_front_nm_per_rad + v.roll_stiffness_rear_nm_per_rad,
-                                        v.roll_damping_nms_per_rad, v.roll_inertia_kgm2)
+                self._model = RollModel.from_vehicle(v)
             t_ns = np.asarray([d[0] for d in data], dtype=np.int64)
             t = (t_ns - t_ns[0]) / 1e9
             grid = np.arange(0.0, t[-1], 1.0 / self._rate_hz)

@@ -124,11 +124,7 @@ def _noop(_step: str) -> None:
 
 def roll_model(v: VehicleConfig) -> RollModel:
     """The body's roll model from the vehicle profile."""
-    return RollModel(
-        mass_kg=v.mass_kg, cg_height_m=v.cg_height_m, roll_axis_height_m=v.roll_axis_height_m,
-        roll_stiffness_nm_per_rad=v.roll_stiffness_front_nm_per_rad + v.roll_stiffness_rear_nm_per_rad,
-        roll_damping_nms_per_rad=v.roll_damping_nms_per_rad, roll_inertia_kgm2=v.roll_inertia_kgm2,
-    )
+    return RollModel.from_vehicle(v)
 
 
 def _ratio_table(profile: VehicleProfile) -> tuple[tuple[float, ...], tuple[float, ...]]:

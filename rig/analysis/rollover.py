@@ -60,6 +60,7 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -128,6 +129,25 @@ def ltr_from_lateral(
     return np.asarray(ltr, dtype=float)
 
 
+class VehicleRollParams(Protocol):
+    """What :meth:`RollModel.from_vehicle` reads of a vehicle (SI)."""
+
+    @property
+    def mass_kg(self) -> float: ...
+    @property
+    def cg_height_m(self) -> float: ...
+    @property
+    def roll_axis_height_m(self) -> float: ...
+    @property
+    def roll_stiffness_front_nm_per_rad(self) -> float: ...
+    @property
+    def roll_stiffness_rear_nm_per_rad(self) -> float: ...
+    @property
+    def roll_damping_nms_per_rad(self) -> float: ...
+    @property
+    def roll_inertia_kgm2(self) -> float: ...
+
+
 @dataclass(frozen=True, slots=True)
 class RollModel:
     """Roll of the body about the roll axis (module docstring), from the vehicle profile (SI)."""
@@ -140,6 +160,16 @@ class RollModel:
     roll_damping_nms_per_rad: float
     roll_inertia_kgm2: float
     """Of the body about the roll axis."""
+
+    @classmethod
+    def from_vehicle(cls, v: VehicleRollParams) -> RollModel:
+        """From a vehicle description with the profile's field names (``rig.config.VehicleConfig``,
+        the simulator's ``VehicleParams``): the two axles' roll stiffnesses add."""
+        return cls(
+            mass_kg=v.mass_kg, cg_height_m=v.cg_height_m, roll_axis_height_m=v.roll_axis_height_m,
+            roll_stiffness_nm_per_rad=v.roll_stiffness_front_nm_per_rad + v.roll_stiffness_rear_nm_per_rad,
+            roll_damping_nms_per_rad=v.roll_damping_nms_per_rad, roll_inertia_kgm2=v.roll_inertia_kgm2,
+        )
 
     def __post_init__(self) -> None:
         m_h = self.mass_kg * G * (self.cg_height_m - self.roll_axis_height_m)

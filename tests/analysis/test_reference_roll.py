@@ -23,11 +23,7 @@ from tests.calibration.observe import gauss_markov
 
 CAR = VehicleParams()
 Z_M = 1.0
-ROLL = RollModel(
-    CAR.mass_kg, CAR.cg_height_m, CAR.roll_axis_height_m,
-    CAR.roll_stiffness_front_nm_per_rad + CAR.roll_stiffness_rear_nm_per_rad,
-    CAR.roll_damping_nms_per_rad, CAR.roll_inertia_kgm2,
-)
+ROLL = RollModel.from_vehicle(CAR)
 GEOM_FLAT = AntennaGeometry(A_XY, BASELINE_M)
 GEOM_ROOF = AntennaGeometry(A_XY, BASELINE_M, z=Z_M)
 
