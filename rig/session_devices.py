@@ -44,7 +44,7 @@ from drivers.novatel import BestPos, BestVel, Heading, Heading2, MarkPos, MarkTi
 from drivers.novatel.commands import LogRequest as NovatelLog
 from drivers.novatel.commands import LogTrigger as NovatelTrigger
 from drivers.novatel.commands import standard_configuration
-from drivers.novatel.messages import LOG_IDS, Header
+from drivers.novatel.messages import LOG_IDS
 from drivers.novatel.receiver import (
     NovatelReceiver,
     ReceivedChunk,
@@ -129,86 +129,39 @@ def _finite(x: float) -> float | None:
 # ---------------------------------------------------------------------------------------------
 
 
-def _time_status(header: Any) -> str:
-    return header.time_status.name if isinstance(header, Header) else "UNKNOWN"
+def _record(kind: str, header: Any, body: Any) -> dict[str, Any]:
+    """One decoded GNSS record (:data:`rig.topics.GNSS_RECORD_FIELDS`); non-finite numbers become null,
+    an enum a short header does not carry ``UNKNOWN``."""
+    out: dict[str, Any] = {}
+    for f in T.GNSS_RECORD_FIELDS[kind]:
+        v = getattr(header if f.header else body, f.name, None)
+        if f.enum is not None:
+            out[f.key] = v.name if v is not None else "UNKNOWN"
+        else:
+            out[f.key] = _finite(v) if isinstance(v, float) else v
+    return out
 
 
 def _position(header: Any, b: BestPos | MarkPos) -> dict[str, Any]:
-    return {
-        "gps_time_ns": header.gps_ns,
-        "time_status": _time_status(header),
-        "sol_status": b.sol_status.name,
-        "pos_type": b.pos_type.name,
-        "lat_deg": b.lat_deg,
-        "lon_deg": b.lon_deg,
-        "height_msl_m": b.hgt_m,
-        "undulation_m": _finite(b.undulation_m),
-        "datum": b.datum.name,
-        "lat_std_m": b.lat_sigma_m,
-        "lon_std_m": b.lon_sigma_m,
-        "height_std_m": b.hgt_sigma_m,
-        "base_station_id": b.stn_id,
-        "diff_age_s": _finite(b.diff_age_s),
-        "sol_age_s": _finite(b.sol_age_s),
-        "num_svs": b.num_svs,
-        "num_sol_svs": b.num_soln_svs,
-        "ext_sol_status": b.ext_sol_stat,
-    }
+    return _record("position", header, b)
 
 
 def _velocity(header: Any, b: BestVel) -> dict[str, Any]:
-    return {
-        "gps_time_ns": header.gps_ns,
-        "time_status": _time_status(header),
-        "sol_status": b.sol_status.name,
-        "vel_type": b.vel_type.name,
-        "latency_s": b.latency_s,
-        "diff_age_s": _finite(b.diff_age_s),
-        "hor_speed_mps": b.hor_spd_mps,
-        "track_over_ground_deg": b.trk_gnd_deg,
-        "vert_speed_mps": b.vert_spd_mps,
-    }
+    return _record("velocity", header, b)
 
 
 def _marktime(b: MarkTime) -> dict[str, Any]:
-    return {
-        "gps_time_ns": b.event_gps_ns,
-        "clock_status": b.clock_status.name,
-        "clock_offset_s": _finite(b.offset_s),
-        "clock_offset_std_s": _finite(b.offset_std_s),
-        "utc_offset_s": _finite(b.utc_offset_s),
-        "event_input": "MARK1",
-    }
+    return {**_record("marktime", None, b), "event_input": "MARK1"}
 
 
 def _time(header: Any, b: Time) -> dict[str, Any]:
     sec, ms = divmod(b.utc_ms, 1000)
-    return {
-        "gps_time_ns": header.gps_ns,
-        "clock_status": b.clock_status.name,
-        "clock_offset_s": _finite(b.offset_s),
-        "clock_offset_std_s": _finite(b.offset_std_s),
-        "utc_offset_s": b.utc_offset_s,
-        "leap_seconds": b.leap_seconds,
-        "utc_status": b.utc_status.name,
-        "utc_iso": f"{b.utc_year:04d}-{b.utc_month:02d}-{b.utc_day:02d}T{b.utc_hour:02d}:{b.utc_min:02d}:"
-        f"{sec:02d}.{ms:03d}Z",
-    }
+    iso = f"{b.utc_year:04d}-{b.utc_month:02d}-{b.utc_day:02d}T{b.utc_hour:02d}:{b.utc_min:02d}:{sec:02d}.{ms:03d}Z"
+    return {**_record("time", header, b), "utc_iso": iso}
 
 
 def _heading(header: Any, b: Heading | Heading2) -> dict[str, Any]:
-    return {
-        "gps_time_ns": header.gps_ns,
-        "sol_status": b.sol_status.name,
-        "pos_type": b.pos_type.name,
-        "length_m": b.length_m,
-        "heading_deg": b.heading_deg,
-        "pitch_deg": b.pitch_deg,
-        "heading_std_deg": _finite(b.heading_sigma_deg),
-        "pitch_std_deg": _finite(b.pitch_sigma_deg),
-        "num_svs": b.num_svs,
-        "num_sol_svs": b.num_soln_svs,
-    }
+    return _record("heading", header, b)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -884,6 +884,61 @@ def _family(pattern: str) -> TopicSpec:
     return _BY_PATTERN[pattern]
 
 
+@dataclass(frozen=True, slots=True)
+class LogField:
+    """One field of a decoded GNSS topic record: ``key`` in the record, taken from attribute (or
+    column) ``name`` of the NovAtel log's header or body; enums are recorded by name."""
+
+    key: str
+    name: str
+    header: bool = False
+    enum: type[Enum] | None = None
+
+
+def _gnss_record_fields() -> dict[str, tuple[LogField, ...]]:
+    from drivers.novatel.enums import ClockModelStatus, Datum, PositionType, SolutionStatus, TimeStatus, UTCStatus
+
+    gps = LogField("gps_time_ns", "gps_ns", header=True)
+    sol = LogField("sol_status", "sol_status", enum=SolutionStatus)
+    clock = (LogField("clock_status", "clock_status", enum=ClockModelStatus), LogField("clock_offset_s", "offset_s"),
+             LogField("clock_offset_std_s", "offset_std_s"), LogField("utc_offset_s", "utc_offset_s"))
+    return {
+        "position": (
+            gps, LogField("time_status", "time_status", header=True, enum=TimeStatus), sol,
+            LogField("pos_type", "pos_type", enum=PositionType), LogField("lat_deg", "lat_deg"),
+            LogField("lon_deg", "lon_deg"), LogField("height_msl_m", "hgt_m"), LogField("undulation_m", "undulation_m"),
+            LogField("datum", "datum", enum=Datum), LogField("lat_std_m", "lat_sigma_m"),
+            LogField("lon_std_m", "lon_sigma_m"), LogField("height_std_m", "hgt_sigma_m"),
+            LogField("base_station_id", "stn_id"), LogField("diff_age_s", "diff_age_s"),
+            LogField("sol_age_s", "sol_age_s"), LogField("num_svs", "num_svs"), LogField("num_sol_svs", "num_soln_svs"),
+            LogField("ext_sol_status", "ext_sol_stat"),
+        ),
+        "velocity": (
+            gps, LogField("time_status", "time_status", header=True, enum=TimeStatus), sol,
+            LogField("vel_type", "vel_type", enum=PositionType), LogField("latency_s", "latency_s"),
+            LogField("diff_age_s", "diff_age_s"), LogField("hor_speed_mps", "hor_spd_mps"),
+            LogField("track_over_ground_deg", "trk_gnd_deg"), LogField("vert_speed_mps", "vert_spd_mps"),
+        ),
+        "heading": (
+            gps, sol, LogField("pos_type", "pos_type", enum=PositionType), LogField("length_m", "length_m"),
+            LogField("heading_deg", "heading_deg"), LogField("pitch_deg", "pitch_deg"),
+            LogField("heading_std_deg", "heading_sigma_deg"), LogField("pitch_std_deg", "pitch_sigma_deg"),
+            LogField("num_svs", "num_svs"), LogField("num_sol_svs", "num_soln_svs"),
+        ),
+        # the event's GPS time, not the log's; plus event_input (always MARK1)
+        "marktime": (LogField("gps_time_ns", "event_gps_ns"), *clock),
+        # plus utc_iso, formatted from the UTC fields
+        "time": (gps, *clock, LogField("leap_seconds", "leap_seconds"),
+                 LogField("utc_status", "utc_status", enum=UTCStatus)),
+    }
+
+
+GNSS_RECORD_FIELDS: Mapping[str, tuple[LogField, ...]] = _gnss_record_fields()
+"""The fields of the decoded GNSS records by kind (``position`` for BESTPOS and MARKPOS, ``velocity``,
+``heading`` for HEADING and HEADING2, ``marktime``, ``time``): one table for the recorder, which
+builds them from each decoded log, and for :mod:`rig.dataset`, which builds them from raw bytes."""
+
+
 def gnss_raw(receiver: str) -> str:
     return _family("/gnss/{receiver}/raw").topic(receiver=receiver)
 

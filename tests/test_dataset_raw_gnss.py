@@ -203,3 +203,20 @@ def test_ascii_log_transmission_times_use_the_same_frame_lengths(recorded: Sessi
     baud = recorded.config["receivers"][2]["baud"]
     want = recorded.gnss_output_latency_ns("rover_b") + np.round(lengths * (10e9 / baud)).astype(np.int64)
     assert np.array_equal(latency, want)
+
+
+def test_the_gnss_field_table_fills_each_topic_schema() -> None:
+    # The recorder and the raw path both build records from T.GNSS_RECORD_FIELDS: every key it gives
+    # (plus the per-kind extras) is a property of the topic's JSON schema, and every required one is given.
+    extras = {"marktime": {"event_input"}, "time": {"utc_iso"}}
+    schemas = {"position": [T.SCHEMA_BESTPOS, T.SCHEMA_MARKPOS], "velocity": [T.SCHEMA_BESTVEL],
+               "heading": [T.SCHEMA_HEADING], "marktime": [T.SCHEMA_MARKTIME], "time": [T.SCHEMA_TIME]}
+    assert set(schemas) == set(T.GNSS_RECORD_FIELDS)
+    for kind, specs in schemas.items():
+        keys = [f.key for f in T.GNSS_RECORD_FIELDS[kind]]
+        assert len(keys) == len(set(keys)), kind
+        given = set(keys) | extras.get(kind, set())
+        for spec in specs:
+            doc = spec.document
+            assert given <= set(doc["properties"]), (kind, sorted(given - set(doc["properties"])))
+            assert set(doc.get("required", ())) <= given, (kind, sorted(set(doc["required"]) - given))

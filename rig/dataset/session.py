@@ -1083,96 +1083,47 @@ def _finite(values: npt.NDArray[Any]) -> FloatArray:
     return np.where(np.isfinite(x), x, np.nan)
 
 
+def _record_columns(kind: str, c: Any) -> dict[str, npt.NDArray[Any]]:
+    """The fields of :data:`rig.topics.GNSS_RECORD_FIELDS` ``kind`` from one log's columns."""
+    out: dict[str, npt.NDArray[Any]] = {}
+    for f in T.GNSS_RECORD_FIELDS[kind]:
+        v = (c.header if f.header else c.body)[f.name]
+        if f.enum is not None:
+            out[f.key] = _names(v, f.enum)
+        elif v.dtype.kind == "f":
+            out[f.key] = _finite(v)
+        elif v.dtype.kind in "US":
+            out[f.key] = _text(v)
+        else:
+            out[f.key] = v
+    return out
+
+
 def gnss_record_columns(batch: Any) -> dict[str, RawGnssRecords]:
     """The decoded GNSS topics' records (``bestpos``, ``bestvel``, ``heading``, ``markpos``, ``marktime``,
-    ``time``) built from a :class:`drivers.novatel.columns.ColumnBatch`, field for field as the recorder
-    builds them from each decoded log (:mod:`rig.session_devices`), and typed as :func:`_columns`
-    reads them back from JSON."""
-    from drivers.novatel.enums import ClockModelStatus, Datum, PositionType, SolutionStatus, TimeStatus, UTCStatus
-
+    ``time``) built from a :class:`drivers.novatel.columns.ColumnBatch` from the same field table as the
+    recorder's (:data:`rig.topics.GNSS_RECORD_FIELDS`), and typed as :func:`_columns` reads them back
+    from JSON."""
     out: dict[str, RawGnssRecords] = {}
-
-    def position(name: str) -> RawGnssRecords:
-        c = batch.log(name)
-        b, h = c.body, c.header
-        return RawGnssRecords(h["gps_ns"], c.end, {
-            "gps_time_ns": h["gps_ns"],
-            "time_status": _names(h["time_status"], TimeStatus),
-            "sol_status": _names(b["sol_status"], SolutionStatus),
-            "pos_type": _names(b["pos_type"], PositionType),
-            "lat_deg": _finite(b["lat_deg"]),
-            "lon_deg": _finite(b["lon_deg"]),
-            "height_msl_m": _finite(b["hgt_m"]),
-            "undulation_m": _finite(b["undulation_m"]),
-            "datum": _names(b["datum"], Datum),
-            "lat_std_m": _finite(b["lat_sigma_m"]),
-            "lon_std_m": _finite(b["lon_sigma_m"]),
-            "height_std_m": _finite(b["hgt_sigma_m"]),
-            "base_station_id": _text(b["stn_id"]),
-            "diff_age_s": _finite(b["diff_age_s"]),
-            "sol_age_s": _finite(b["sol_age_s"]),
-            "num_svs": b["num_svs"],
-            "num_sol_svs": b["num_soln_svs"],
-            "ext_sol_status": b["ext_sol_stat"],
-        })
-
-    out["bestpos"] = position("BESTPOS")
-    out["markpos"] = position("MARKPOS")
-    c = batch.log("BESTVEL")
-    out["bestvel"] = RawGnssRecords(c.header["gps_ns"], c.end, {
-        "gps_time_ns": c.header["gps_ns"],
-        "time_status": _names(c.header["time_status"], TimeStatus),
-        "sol_status": _names(c.body["sol_status"], SolutionStatus),
-        "vel_type": _names(c.body["vel_type"], PositionType),
-        "latency_s": _finite(c.body["latency_s"]),
-        "diff_age_s": _finite(c.body["diff_age_s"]),
-        "hor_speed_mps": _finite(c.body["hor_spd_mps"]),
-        "track_over_ground_deg": _finite(c.body["trk_gnd_deg"]),
-        "vert_speed_mps": _finite(c.body["vert_spd_mps"]),
-    })
+    for topic, log, kind in (("bestpos", "BESTPOS", "position"), ("markpos", "MARKPOS", "position"),
+                             ("bestvel", "BESTVEL", "velocity")):
+        c = batch.log(log)
+        out[topic] = RawGnssRecords(c.header["gps_ns"], c.end, _record_columns(kind, c))
     c = batch.log("MARKTIME")
-    out["marktime"] = RawGnssRecords(c.body["event_gps_ns"], c.end, {
-        "gps_time_ns": c.body["event_gps_ns"],
-        "clock_status": _names(c.body["clock_status"], ClockModelStatus),
-        "clock_offset_s": _finite(c.body["offset_s"]),
-        "clock_offset_std_s": _finite(c.body["offset_std_s"]),
-        "utc_offset_s": _finite(c.body["utc_offset_s"]),
-        "event_input": np.full(len(c), "MARK1"),
-    })
+    cols = _record_columns("marktime", c)
+    out["marktime"] = RawGnssRecords(c.body["event_gps_ns"], c.end, {**cols, "event_input": np.full(len(c), "MARK1")})
     c = batch.log("TIME")
     b = c.body
     iso = [f"{y:04d}-{mo:02d}-{d:02d}T{hh:02d}:{mi:02d}:{ms // 1000:02d}.{ms % 1000:03d}Z" for y, mo, d, hh, mi, ms in
            zip(*(b[k].tolist() for k in ("utc_year", "utc_month", "utc_day", "utc_hour", "utc_min", "utc_ms")),
                strict=True)]
-    out["time"] = RawGnssRecords(c.header["gps_ns"], c.end, {
-        "gps_time_ns": c.header["gps_ns"],
-        "clock_status": _names(b["clock_status"], ClockModelStatus),
-        "clock_offset_s": _finite(b["offset_s"]),
-        "clock_offset_std_s": _finite(b["offset_std_s"]),
-        "utc_offset_s": _finite(b["utc_offset_s"]),
-        "leap_seconds": b["leap_seconds"],
-        "utc_status": _names(b["utc_status"], UTCStatus),
-        "utc_iso": np.asarray(iso, dtype=str),
-    })
+    out["time"] = RawGnssRecords(c.header["gps_ns"], c.end,
+                                 {**_record_columns("time", c), "utc_iso": np.asarray(iso, dtype=str)})
     h1, h2 = batch.log("HEADING"), batch.log("HEADING2")
     order = np.argsort(np.concatenate([h1.offset, h2.offset]), kind="stable")
-
-    def both(part: str, name: str) -> npt.NDArray[Any]:
-        return np.concatenate([getattr(h1, part)[name], getattr(h2, part)[name]])[order]
-
-    gps = both("header", "gps_ns")
-    out["heading"] = RawGnssRecords(gps, np.concatenate([h1.end, h2.end])[order], {
-        "gps_time_ns": gps,
-        "sol_status": _names(both("body", "sol_status"), SolutionStatus),
-        "pos_type": _names(both("body", "pos_type"), PositionType),
-        "length_m": _finite(both("body", "length_m")),
-        "heading_deg": _finite(both("body", "heading_deg")),
-        "pitch_deg": _finite(both("body", "pitch_deg")),
-        "heading_std_deg": _finite(both("body", "heading_sigma_deg")),
-        "pitch_std_deg": _finite(both("body", "pitch_sigma_deg")),
-        "num_svs": both("body", "num_svs"),
-        "num_sol_svs": both("body", "num_soln_svs"),
-    })
+    c1, c2 = _record_columns("heading", h1), _record_columns("heading", h2)
+    heading = {k: np.concatenate([c1[k], c2[k]])[order] for k in c1}
+    out["heading"] = RawGnssRecords(heading["gps_time_ns"], np.concatenate([h1.end, h2.end])[order], heading)
     return out
 
 
