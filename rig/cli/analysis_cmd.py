@@ -61,23 +61,33 @@ def _parse_speeds(text: str | None) -> list[float]:
 
 
 def error_model_cmd(
-    mass: Annotated[float, typer.Option("--mass", help="Vehicle mass [kg].")],
-    wheelbase: Annotated[float, typer.Option("--wheelbase", help="Wheelbase l [m].")],
+    mass: Annotated[float, typer.Option("--mass", help="Vehicle mass (kg), the whole car.")],
+    wheelbase: Annotated[float, typer.Option("--wheelbase", help="Wheelbase l (m).")],
     cornering_stiffness: Annotated[
-        float, typer.Option("--cornering-stiffness", help="Cornering stiffness per tyre [N/rad] (two tyres per axle).")
+        float,
+        typer.Option(
+            "--cornering-stiffness",
+            help="Cornering stiffness of one front tyre (N/rad per tyre, not per axle: an axle has two tyres); "
+            "also each rear tyre's unless --cornering-stiffness-rear.",
+        ),
     ],
     front_axle_load_share: Annotated[
-        float, typer.Option("--front-axle-load-share", help="b/l: share of the weight on the front axle (e.g. 0.6).")
+        float,
+        typer.Option("--front-axle-load-share", help="b/l: share of the weight on the front axle (e.g. 0.6)."),
     ],
     roll_gain_deg_per_g: Annotated[
-        float, typer.Option("--roll-gain-deg-per-g", help="Static roll gain [deg of roll per g of lateral accel.].")
+        float,
+        typer.Option("--roll-gain-deg-per-g", help="Static roll gain (deg of body roll per g of lateral accel.)."),
     ],
     cornering_stiffness_rear: Annotated[
         float | None,
-        typer.Option("--cornering-stiffness-rear", help="Rear cornering stiffness per tyre [N/rad] (default: same)."),
+        typer.Option(
+            "--cornering-stiffness-rear",
+            help="Cornering stiffness of one rear tyre (N/rad per tyre; default: same as the front tyre).",
+        ),
     ] = None,
     speeds: Annotated[
-        str | None, typer.Option("--speeds", help="Comma-separated speeds [km/h] (default 10, 20, …, 200).")
+        str | None, typer.Option("--speeds", help="Comma-separated speeds (km/h; default 10, 20, …, 200).")
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON (sign-change speed, γ at each speed).")] = False,
     plot: Annotated[Path | None, typer.Option("--plot", help="Write a plot of γ(v) to this PNG file.")] = None,

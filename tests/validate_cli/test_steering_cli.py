@@ -85,3 +85,15 @@ def test_bad_parameters_are_one_line_errors(capsys) -> None:
         main([*ARGS, "--speeds", "20,fast"])
     assert exc.value.code == 2
     assert "--speeds" in capsys.readouterr().err
+
+
+def test_help_shows_the_units_and_per_tyre_wording() -> None:
+    """Issue 16 §6: bracketed units such as "[kg]" were Rich markup tags and vanished ("Vehicle mass .")."""
+    res = runner.invoke(app, ["steering", "error-model", "--help"], env={"COLUMNS": "300", "NO_COLOR": "1"})
+    assert res.exit_code == 0, res.output
+    text = " ".join(res.output.replace("│", " ").split())  # the box drawing and the wrapping are Rich's
+    for phrase in ("Vehicle mass (kg)", "Wheelbase l (m)", "one front tyre (N/rad per tyre, not per axle",
+                   "one rear tyre (N/rad per tyre", "deg of body roll per g of lateral accel.",
+                   "speeds (km/h"):
+        assert phrase in text, phrase
+    assert " ." not in text  # no unit swallowed before a full stop
