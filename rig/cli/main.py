@@ -81,12 +81,27 @@ def _register() -> None:
 _register()
 
 
+def _usage_line(exc: typer.TyperException) -> str:
+    """One line for a usage error: the command it concerns, the message and where to look."""
+    ctx = getattr(exc, "ctx", None)
+    command = ctx.command_path if ctx is not None else "rig"
+    message = " ".join(exc.format_message().split())  # one line, whatever the message held
+    return f"{command}: error: {message} (see '{command} --help')"
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Run the CLI; project errors become one line on stderr and exit status 2."""
-    debug = "--debug" in (argv if argv is not None else sys.argv[1:])
+    """Run the CLI and turn every way it can end into an exit status and at most one line on stderr.
+
+    - project errors (:class:`RigError`): ``rig: error: …``, status 2;
+    - usage errors (unknown option, missing or bad parameter): ``rig CMD: error: …``, status 2;
+    - any other exception: ``rig: internal error: …``, status 1;
+    - ``--debug`` re-raises project and unexpected errors, so Python prints the traceback.
+    """
+    args = argv if argv is not None else sys.argv[1:]
+    debug = "--debug" in args
     try:
-        # without standalone mode click returns a command's exit code instead of exiting with it
-        code = app(args=argv, standalone_mode=False)
+        # without standalone mode typer returns a command's exit code instead of exiting with it
+        code = app(args=args, standalone_mode=False, prog_name="rig")
     except RigError as exc:
         if debug:
             raise
@@ -100,12 +115,26 @@ def main(argv: list[str] | None = None) -> None:
     except typer.Abort:
         typer.echo("rig: aborted", err=True)
         sys.exit(1)
-    except Exception as exc:  # click usage errors carry their own exit code
-        import click
-
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
-        raise
+    except typer.TyperException as exc:  # usage errors (exit code 2) and file-argument errors
+        if _is_help_request(exc):
+            # `rig`, `rig sim`: a group without a command shows its help (rich has printed it already)
+            text = exc.format_message()
+            if text.strip():
+                typer.echo(text, err=True)
+        else:
+            typer.echo(_usage_line(exc), err=True)
+        sys.exit(exc.exit_code)
+    except Exception as exc:
+        if debug:
+            raise
+        detail = " ".join(str(exc).split()) or "(no message)"
+        hint = "run with --debug for the traceback"
+        typer.echo(f"rig: internal error: {type(exc).__name__}: {detail} ({hint})", err=True)
+        sys.exit(1)
     if isinstance(code, int) and code != 0:
         sys.exit(code)
+
+
+def _is_help_request(exc: typer.TyperException) -> bool:
+    """A group called without a command (``no_args_is_help``): typer raises it as a usage error."""
+    return type(exc).__name__ == "NoArgsIsHelpError"
