@@ -24,9 +24,13 @@ Framings (the relay forwards ``raw`` unchanged):
   modulo 256), ``03`` (ETX).
 
 A candidate whose claimed end has not arrived yet is held. To keep a truncated frame (a source
-cut mid-frame) from holding back the frames after it, the framer looks past a pending candidate
-for a complete CRC-24-checked frame (RTCM3 or RTCA); if it finds one, the pending candidate is
-given up (counted as truncated). CMR's 8-bit checksum is too weak to be trusted for this.
+cut mid-frame) from holding back the frames after it, a candidate is given up (counted as
+truncated) when a complete CRC-24-checked frame (RTCM3 or RTCA) starts inside it and ends before
+it. CMR's 8-bit checksum is too weak to be trusted for this. The decisions depend on the bytes
+only, so every chunking of a stream gives the same frames, and the cost is linear in the bytes.
+
+Counting: a candidate that fails its check is one rejected frame; the sync candidates inside
+its claimed bytes are sync-search bytes (``skipped_bytes``), not more rejected frames.
 """
 
 from __future__ import annotations
@@ -131,6 +135,7 @@ _OK: Final = 0
 _NEED: Final = 1  # a plausible start whose end has not arrived
 _NOT: Final = 2  # not a frame start: skip one byte
 _BAD: Final = 3  # a complete candidate whose check failed
+_NEVER: Final = 1 << 62
 
 
 def _reverse_table() -> bytes:
@@ -202,6 +207,17 @@ _HEX_DIGITS: Final = frozenset(b"0123456789ABCDEFabcdef")
 class CorrectionFramer:
     """Incremental framer for RTCM3, RTCA and CMR correction streams.
 
+    The frames returned depend only on the byte stream, never on how it was cut into chunks, and
+    the cost is linear in the bytes for any chunking: while a frame is incomplete the framer knows
+    the buffer length at which anything could change (the frame's end, or the header of a frame
+    that may complete inside it) and only appends until then.
+
+    A candidate frame is given up (counted as truncated) when a complete CRC-24-checked frame
+    (RTCM3 or RTCA) starts inside it and ends before it; of several, the one that ends first wins
+    (what a byte-at-a-time reader sees first). A candidate that fails its check counts as one
+    rejected frame; sync candidates inside a rejected frame's bytes are not counted again (their
+    bytes are skipped bytes).
+
     Args:
         kinds: the framings to look for (all by default). Bytes of other framings are skipped.
     """
@@ -218,28 +234,53 @@ class CorrectionFramer:
         if CorrectionKind.CMR in self.kinds:
             sync += rb"\x02"
         self._sync = re.compile(b"[" + sync + b"]")
-        self.stats = CorrectionFramerStats()
-        self._buf = b""
+        inner = bytes(b for b in (RTCM3_PREAMBLE, RTCA_BLOCK_ID) if _KIND_OF_SYNC[b] in self.kinds)
+        # a frame that may start inside a held one (matches nothing when only CMR is framed)
+        self._inner_re = re.compile(b"[" + re.escape(inner) + b"]" if inner else b"(?!)")
+        self._watch = (inner[0], inner[-1]) if inner else (CMR_STX, CMR_STX)
+        self._inner_key = -1  # stream offset of the held candidate that _inner_* belong to
+        self._inner_live: list[int] = []  # undecided candidates inside it (offsets from it)
+        self._inner_next = 1  # offset from it up to which candidates have been listed
+        self._stats = CorrectionFramerStats()
+        self._buf = bytearray()
+        self._base = 0  # stream offset of _buf[0]
+        self._need = 1  # buffer length at which scanning again can make progress
+        self._hex_from = 0  # pending "$RTCA," log at _buf[0]: _buf[6:_hex_from] are hex digits, no '*'
+        self._bad_end = 0  # stream offset where the last rejected frame's claimed bytes end
 
     # --- public API ---------------------------------------------------------------------
 
+    @property
+    def stats(self) -> CorrectionFramerStats:
+        """Running counts (mutable; :meth:`CorrectionFramerStats.copy` for a snapshot)."""
+        self._stats.bytes_in = self._base + len(self._buf)
+        return self._stats
+
     def feed(self, data: bytes | bytearray | memoryview) -> list[CorrectionFrame]:
         """Add bytes; return the frames they complete, in stream order."""
-        if data:
-            chunk = bytes(data)
-            self.stats.bytes_in += len(chunk)
-            self._buf = self._buf + chunk if self._buf else chunk
-        return self._scan()
+        buf = self._buf
+        buf += data
+        # Below the decisive length only a new frame start inside the held one can change anything.
+        if len(buf) < self._need and self._watch[0] not in data and self._watch[1] not in data:
+            return []
+        return self._scan(False)
 
     def reset(self) -> None:
         """Drop a partial frame (the source was reconnected): it counts as truncated."""
         if self._buf:
             self._give_up(len(self._buf))
-        self._buf = b""
+        self._base += len(self._buf)
+        self._buf = bytearray()
+        self._need = 1
+        self._hex_from = 0
 
     def finish(self) -> list[CorrectionFrame]:
-        """End of stream: nothing more will complete the held bytes."""
-        frames = self._scan()
+        """End of stream: nothing more will complete the held bytes.
+
+        A candidate still incomplete is given up (one truncated frame) and the bytes after its
+        start are searched again, so a whole frame behind a truncated one is still returned.
+        """
+        frames = self._scan(True)
         self.reset()
         return frames
 
@@ -252,16 +293,25 @@ class CorrectionFramer:
 
     def _give_up(self, nbytes: int) -> None:
         # Bytes held for a candidate that never completed.
-        self.stats.truncated += 1
-        self.stats.skipped_bytes += nbytes
+        self._stats.truncated += 1
+        self._stats.skipped_bytes += nbytes
 
-    def _scan(self) -> list[CorrectionFrame]:
+    def _scan(self, final: bool) -> list[CorrectionFrame]:
         buf = self._buf
         n = len(buf)
-        pos = 0
         out: list[CorrectionFrame] = []
-        stats = self.stats
+        # A pending RTCAA log only changes with a '*', a non-hex byte or at its longest length.
+        if self._hex_from and not final and n < RTCA_ASCII_MAX and _HEX_DIGITS.issuperset(buf[self._hex_from :]):
+            self._hex_from = n
+            self._need = n + 1
+            return out
+        self._hex_from = 0
+        pos = 0
+        need = 1
+        stats = self._stats
         search = self._sync.search
+        inner_search = self._inner_re.search
+        truncated_at_end = False
         while pos < n:
             m = search(buf, pos)
             if m is None:
@@ -271,52 +321,95 @@ class CorrectionFramer:
             start = m.start()
             stats.skipped_bytes += start - pos
             status, end, frame = self._parse(buf, start, n)
-            if status == _OK and frame is not None:
+            if status == _NOT:
+                stats.skipped_bytes += 1
+                pos = start + 1
+                continue
+            # OK and BAD: complete, ends at ``end``; NEED: ``end`` is the length that decides it.
+            if status != _NEED and self._inner_key != self._base + start and not inner_search(buf, start + 1, end):
+                inner, inner_need = None, _NEVER  # nothing inside a complete frame could start a frame
+            else:
+                inner, inner_need = self._look_past(buf, start, n + 1 if status == _NEED else end, n)
+            if inner is not None:
+                q, q_end, q_frame = inner
+                self._give_up(q - start)
+                self._emit(out, q_frame, q_end - q)
+                pos = q_end
+            elif status == _OK and frame is not None:
                 self._emit(out, frame, end - start)
                 pos = end
-            elif status == _NEED:
-                found = self._look_past(buf, start, n)
-                if found is None:
-                    pos = start
-                    break
-                inner, inner_end, inner_frame = found
-                self._give_up(inner - start)
-                self._emit(out, inner_frame, inner_end - inner)
-                pos = inner_end
             elif status == _BAD:
-                stats.rejected[_KIND_OF_SYNC[buf[start]]] += 1
+                if self._base + start >= self._bad_end:
+                    stats.rejected[_KIND_OF_SYNC[buf[start]]] += 1
+                    self._bad_end = self._base + end
+                stats.skipped_bytes += 1
+                pos = start + 1
+            elif final:
+                # End of stream: the candidate at ``start`` never completes; every later
+                # candidate lies inside its claimed bytes, so it counts as one truncated frame.
+                if not truncated_at_end:
+                    stats.truncated += 1
+                    truncated_at_end = True
                 stats.skipped_bytes += 1
                 pos = start + 1
             else:
-                stats.skipped_bytes += 1
-                pos = start + 1
-        self._buf = buf[pos:] if pos < n else b""
+                pos = start
+                need = min(end, inner_need) - start
+                if buf[start] == 0x24 and n - start > len(_RTCA_ASCII_HEAD) and buf.find(b"*", start) < 0:
+                    self._hex_from = n - start
+                break
+        del buf[:pos]
+        self._base += pos
+        self._need = need
         return out
 
     def _emit(self, out: list[CorrectionFrame], frame: CorrectionFrame, length: int) -> None:
-        stats = self.stats
+        stats = self._stats
         out.append(frame)
         stats.frames[frame.kind] += 1
         stats.frames_by_label[frame.label] = stats.frames_by_label.get(frame.label, 0) + 1
         stats.bytes_in_frames += length
 
-    def _look_past(self, buf: bytes, start: int, n: int) -> tuple[int, int, CorrectionFrame] | None:
-        """A complete CRC-24-checked frame starting after a pending candidate, if there is one."""
-        search = self._sync.search
-        pos = start + 1
-        while pos < n:
-            m = search(buf, pos)
-            if m is None:
-                return None
-            q = m.start()
-            if buf[q] in (RTCM3_PREAMBLE, RTCA_BLOCK_ID):
-                status, end, frame = self._parse(buf, q, n)
-                if status == _OK and frame is not None:
-                    return q, end, frame
-            pos = q + 1
-        return None
+    def _look_past(
+        self, buf: bytearray, start: int, limit: int, n: int
+    ) -> tuple[tuple[int, int, CorrectionFrame] | None, int]:
+        """The complete CRC-24-checked frame after ``start`` that ends first, before ``limit``;
+        and the least buffer length at which an incomplete one there could be decided.
 
-    def _parse(self, buf: bytes, start: int, n: int) -> tuple[int, int, CorrectionFrame | None]:
+        The candidates inside the one at ``start`` are kept between calls (as offsets from it), so
+        a held frame's bytes are searched once, not on every feed.
+        """
+        key = self._base + start
+        if self._inner_key != key:
+            self._inner_key = key
+            self._inner_live = []
+            self._inner_next = 1
+        live = self._inner_live
+        stop = min(n, limit)
+        if start + self._inner_next < stop:
+            live.extend(m.start() - start for m in self._inner_re.finditer(buf, start + self._inner_next, stop))
+            self._inner_next = stop - start
+        best: tuple[int, int, CorrectionFrame] | None = None
+        need = _NEVER
+        keep: list[int] = []
+        parse = self._parse
+        for d in live:
+            q = start + d
+            if q >= stop:
+                keep.append(d)
+                continue
+            status, end, frame = parse(buf, q, n)
+            if status == _OK and frame is not None:
+                keep.append(d)
+                if end < limit and (best is None or end < best[1]):
+                    best = (q, end, frame)
+            elif status == _NEED:
+                keep.append(d)
+                need = min(need, end)
+        self._inner_live = keep
+        return best, need
+
+    def _parse(self, buf: bytearray, start: int, n: int) -> tuple[int, int, CorrectionFrame | None]:
         b0 = buf[start]
         if b0 == RTCM3_PREAMBLE:
             return _parse_rtcm3(buf, start, n)
@@ -337,35 +430,37 @@ _KIND_OF_SYNC: Final = {
 _Result = tuple[int, int, CorrectionFrame | None]
 
 
-def _parse_rtcm3(buf: bytes, start: int, n: int) -> _Result:
+def _parse_rtcm3(buf: bytearray, start: int, n: int) -> _Result:
     avail = n - start
-    if avail >= 2 and buf[start + 1] & 0xFC:
+    if avail < 2:
+        return _NEED, start + 2, None
+    if buf[start + 1] & 0xFC:
         return _NOT, 0, None
     if avail < 5:
-        return _NEED, 0, None
+        return _NEED, start + 5, None
     length = (buf[start + 1] & 0x03) << 8 | buf[start + 2]
     if length < 2:
         return _NOT, 0, None
     end = start + length + 6
     if end > n:
-        return _NEED, 0, None
-    raw = buf[start:end]
+        return _NEED, end, None
+    raw = bytes(buf[start:end])
     if crc24q(raw) != 0:
         return _BAD, end, None
     number = buf[start + 3] << 4 | buf[start + 4] >> 4
     return _OK, end, CorrectionFrame(CorrectionKind.RTCM3, raw, number, f"RTCM {number}")
 
 
-def _parse_rtca(buf: bytes, start: int, n: int) -> _Result:
+def _parse_rtca(buf: bytearray, start: int, n: int) -> _Result:
     if n - start < RTCA_HEADER_LEN:
-        return _NEED, 0, None
+        return _NEED, start + RTCA_HEADER_LEN, None
     length = buf[start + 5]
     if length < RTCA_MIN_LEN:
         return _NOT, 0, None
     end = start + length
     if end > n:
-        return _NEED, 0, None
-    raw = buf[start:end]
+        return _NEED, end, None
+    raw = bytes(buf[start:end])
     if crc24q(raw.translate(_REVERSE)) != 0:
         return _BAD, end, None
     mtype = buf[start + 4]
@@ -375,12 +470,12 @@ def _parse_rtca(buf: bytes, start: int, n: int) -> _Result:
 _RTCA_ASCII_HEAD: Final = b"$RTCA,"
 
 
-def _parse_rtca_ascii(buf: bytes, start: int, n: int) -> _Result:
+def _parse_rtca_ascii(buf: bytearray, start: int, n: int) -> _Result:
     head = buf[start : start + len(_RTCA_ASCII_HEAD)]
     if not _RTCA_ASCII_HEAD.startswith(head):
         return _NOT, 0, None
     if len(head) < len(_RTCA_ASCII_HEAD):
-        return _NEED, 0, None
+        return _NEED, n + 1, None
     star = buf.find(b"*", start + len(_RTCA_ASCII_HEAD), min(n, start + RTCA_ASCII_MAX))
     if star < 0:
         # Hex digits only until the '*'; anything else means this is not an RTCAA log.
@@ -388,10 +483,10 @@ def _parse_rtca_ascii(buf: bytes, start: int, n: int) -> _Result:
         body = buf[start + len(_RTCA_ASCII_HEAD) : stop]
         if not _HEX_DIGITS.issuperset(body):
             return _NOT, 0, None
-        return (_NEED, 0, None) if stop < start + RTCA_ASCII_MAX else (_NOT, 0, None)
+        return (_NEED, n + 1, None) if stop < start + RTCA_ASCII_MAX else (_NOT, 0, None)
     end = star + 3
     if end > n:
-        return _NEED, 0, None
+        return _NEED, end, None
     hex_body = buf[start + len(_RTCA_ASCII_HEAD) : star]
     if not hex_body or len(hex_body) % 2 or not _HEX_DIGITS.issuperset(hex_body):
         return _NOT, 0, None
@@ -408,26 +503,28 @@ def _parse_rtca_ascii(buf: bytes, start: int, n: int) -> _Result:
         return _BAD, end, None
     # The rover parses the log as a command line, so the frame always ends with CR LF; the CR LF
     # that follows in the stream is taken with it when it has arrived (not waited for).
-    raw = buf[start:end] + b"\r\n"
+    raw = bytes(buf[start:end]) + b"\r\n"
     if buf[end : end + 2] == b"\r\n":
         end += 2
     mtype = block[4]
     return _OK, end, CorrectionFrame(CorrectionKind.RTCA, raw, mtype, f"RTCA {mtype}")
 
 
-def _parse_cmr(buf: bytes, start: int, n: int) -> _Result:
+def _parse_cmr(buf: bytearray, start: int, n: int) -> _Result:
     avail = n - start
-    if avail >= 3 and buf[start + 2] not in CMR_PACKET_TYPES:
+    if avail < 3:
+        return _NEED, start + 3, None
+    if buf[start + 2] not in CMR_PACKET_TYPES:
         return _NOT, 0, None
     if avail < 4:
-        return _NEED, 0, None
+        return _NEED, start + 4, None
     length = buf[start + 3]
     end = start + length + 6
     if end > n:
-        return _NEED, 0, None
+        return _NEED, end, None
     if buf[end - 1] != CMR_ETX or cmr_checksum(buf[start + 1 : end - 2]) != buf[end - 2]:
         return _BAD, end, None
-    raw = buf[start:end]
+    raw = bytes(buf[start:end])
     ptype = buf[start + 2]
     prefix = CMR_PACKET_TYPES[ptype]
     if ptype == 0x93 and length >= 2:

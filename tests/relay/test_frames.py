@@ -171,3 +171,85 @@ def test_kinds_can_be_restricted() -> None:
     assert [f.raw for f in frames] == [EPOCH[0]]
     with pytest.raises(ValueError, match="at least one"):
         CorrectionFramer([])
+
+
+def _random_frames(seed: int, count: int) -> list[bytes]:
+    """RTCM3 frames with random payloads (MSM-sized): their bytes hold many false sync candidates."""
+    rng = random.Random(seed)
+    frames = []
+    for _ in range(count):
+        payload = bytes([0x43, 0x50]) + rng.randbytes(rng.randrange(100, 900))  # message 1077
+        frames.append(encode_rtcm3(payload))
+    return frames
+
+
+@pytest.mark.parametrize("piece", [None, 1, 7, 300])
+def test_ten_corrupted_frames_count_as_ten_rejected(piece: int | None) -> None:
+    # Each corrupted frame has ~60 false sync candidates inside (0xD3, 0x99, '$', 0x02 bytes of its
+    # payload); counting every failed candidate gave 12-14 (and here more) for 10 bad frames.
+    frames = _random_frames(3, 60)
+    rng = random.Random(9)
+    corrupted = sorted(rng.sample(range(60), 10))
+    stream = bytearray()
+    for i, f in enumerate(frames):
+        g = bytearray(f)
+        if i in corrupted:
+            g[rng.randrange(5, len(g) - 3)] ^= 1 << rng.randrange(8)  # a payload bit: length intact
+        stream += g
+    framer = CorrectionFramer()
+    if piece is None:
+        got = framer.feed(bytes(stream))
+    else:
+        got = [f for i in range(0, len(stream), piece) for f in framer.feed(stream[i : i + piece])]
+    got += framer.finish()
+    assert [f.raw for f in got] == [f for i, f in enumerate(frames) if i not in corrupted]
+    stats = framer.stats
+    assert stats.rejected == {CorrectionKind.RTCM3: 10, CorrectionKind.RTCA: 0, CorrectionKind.CMR: 0}
+    assert stats.truncated == 0
+    # the sync search inside the bad frames is counted as skipped bytes, apart
+    assert stats.skipped_bytes == sum(len(frames[i]) for i in corrupted)
+    assert stats.bytes_in == len(stream) == stats.skipped_bytes + stats.bytes_in_frames
+
+
+def _nested(outer_payload_prefix: bytes, inner: bytes) -> bytes:
+    """A whole RTCM3 frame whose payload carries another whole frame."""
+    return encode_rtcm3(outer_payload_prefix + inner + b"\x00\x01")
+
+
+_PART = st.one_of(
+    st.binary(min_size=2, max_size=60).map(lambda p: encode_rtcm3(b"\x3e\xd0" + p)),
+    st.binary(max_size=40).map(lambda b: encode_rtca(7, b)),
+    st.binary(max_size=30).map(lambda b: encode_rtca_ascii(encode_rtca(1, b))),
+    st.binary(min_size=2, max_size=40).map(lambda b: encode_cmr(0x93, b)),
+    st.binary(max_size=12),  # garbage
+    st.sampled_from([b"\xd3", b"\xd3\x00", b"\xd3\x00\x40", b"\x99", b"$RTCA,99", b"\x02\x00\x93\x10"]),
+    st.tuples(st.binary(min_size=2, max_size=40), st.integers(min_value=1, max_value=30)).map(
+        lambda t: encode_rtcm3(b"\x3e\xd0" + t[0])[: t[1]]  # a truncated frame
+    ),
+    st.tuples(st.binary(min_size=2, max_size=40), st.integers(min_value=0, max_value=7)).map(
+        lambda t: bytes([*encode_rtcm3(b"\x3e\xd0" + t[0])[:-1], encode_rtcm3(b"\x3e\xd0" + t[0])[-1] ^ (1 << t[1])])
+    ),  # a corrupted frame
+    st.binary(max_size=10).map(lambda b: _nested(b"\x3e\xd0" + b, encode_rtca(7, b))),
+    st.binary(max_size=10).map(lambda b: _nested(b"\x3e\xd0", encode_rtcm3(b"\x3e\xd0" + b))),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(_PART, max_size=25), st.data())
+def test_the_frames_do_not_depend_on_the_chunking(parts: list[bytes], data: st.DataObject) -> None:
+    stream = b"".join(parts)
+    whole = CorrectionFramer()
+    expected = whole.feed(stream) + whole.finish()
+    cuts = data.draw(st.lists(st.integers(min_value=0, max_value=len(stream)), max_size=60), label="cuts")
+    bounds = [0, *sorted(set(cuts)), len(stream)]
+    pieces = CorrectionFramer()
+    got = [f for a, b in zip(bounds, bounds[1:], strict=False) for f in pieces.feed(stream[a:b])]
+    got += pieces.finish()
+    assert got == expected
+    bytewise = CorrectionFramer()
+    assert [f for i in range(len(stream)) for f in bytewise.feed(stream[i : i + 1])] + bytewise.finish() == expected
+    for framer in (pieces, bytewise):
+        assert framer.stats.rejected == whole.stats.rejected
+        assert framer.stats.truncated == whole.stats.truncated
+        assert framer.stats.frames_by_label == whole.stats.frames_by_label
+        assert framer.stats.bytes_in == len(stream)
