@@ -1068,6 +1068,7 @@ def info_to_json(info: SessionInfo) -> dict[str, Any]:
                 }
                 for c in info.clocks
             ],
+            "verdicts": _quality_json(info.path),
         },
         "calibration": dict(info.calibration),
         "calibration_file": None if info.calibration_file is None else {
@@ -1088,6 +1089,12 @@ def info_to_json(info: SessionInfo) -> dict[str, Any]:
     }
     assert tuple(doc) == INFO_JSON_KEYS
     return doc
+
+
+def _quality_json(path: Path) -> dict[str, Any]:
+    from rig.quality import info_json
+
+    return info_json(path)
 
 
 def _jsonable(v: Any) -> Any:
@@ -1256,6 +1263,10 @@ def format_info(info: SessionInfo, *, max_list: int = 20) -> str:
         out.extend(_table(rows, (False, False, False, True, True, True, True, True, True, True, True)))
     else:
         out.append("  (no time-base records: the time base quality is unknown)")
+    from rig.quality import info_lines
+
+    out.append("time-base verdicts (good / degraded / unusable, see rig.quality)")
+    out.extend(f"  {line}" for line in info_lines(info.path))
 
     out.append("")
     out.append("calibration in force")

@@ -38,7 +38,7 @@ import dataclasses
 import logging
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -77,6 +77,7 @@ from rig.analysis.rollover import (
 from rig.analysis.steering import SteeringModel, SteeringReconstruction, reconstruct_steering
 from rig.analysis.validate import ValidationResult, run_estimator, score_reference_against_truth, validate_estimate
 from rig.config import ValidationConfig, VehicleConfig, VehicleProfile
+from rig.quality import StreamQuality, check_inputs
 from vsccore.angles import FloatArray
 from vsccore.errors import AnalysisError, ConfigError
 
@@ -278,6 +279,10 @@ class SessionValidation:
     """Per optical wheel sensor: agreement of its slip angle with the reference tyre slip (degrees)."""
     steering: SteeringReconstruction | None
     warnings: tuple[str, ...]
+    timing_warnings: tuple[str, ...] = ()
+    """Degraded time-base verdicts of the streams used (:mod:`rig.quality`): the report's headline."""
+    time_base: Mapping[str, StreamQuality] = field(default_factory=dict)
+    """The time-base verdict of every stream the validation used."""
 
     @property
     def passed(self) -> bool:
@@ -317,6 +322,8 @@ class SessionValidation:
             "tyre_slip": {k: dict(v) for k, v in self.tyre_slip.items()},
             "steering": None if self.steering is None else self.steering.to_dict(),
             "warnings": list(self.warnings),
+            "timing_warnings": list(self.timing_warnings),
+            "time_base": {k: q.to_json() for k, q in self.time_base.items()},
         }
         d.update(self.result.to_dict())
         return _clean(d)
@@ -366,6 +373,9 @@ def validate_session(
         inp = load_inputs(source)
     else:
         inp = source
+    step("time-base verdicts")
+    timing, time_base = check_inputs(inp, what=f"rig validate {inp.name}")
+    warnings.extend(timing)
     warnings.extend(inp.warnings)
     prof = inp.profile
     tol_cfg, vcfg = tolerances_from_config(inp.session.config)
@@ -483,7 +493,7 @@ def validate_session(
         error_rad=error_series(est, ref.beta), ay_mps2=np.asarray(ay, dtype=float), speed_mps=speed,
         track_east_m=gnss.a.east_m, track_north_m=gnss.a.north_m, result=res, tolerances=tol, optical=opt,
         cross_check=cc, cross_check_flagged=flagged, truth_beta_rad=truth_beta, tyre_slip=tyre, steering=steering,
-        warnings=tuple(dict.fromkeys(warnings)),
+        warnings=tuple(dict.fromkeys(warnings)), timing_warnings=timing, time_base=time_base,
     )
 
 
@@ -512,6 +522,9 @@ class RolloverReport:
     """Against the true LTR over the evaluated span (empty without truth)."""
     evaluation: str
     """Which span the prediction errors cover."""
+    timing_warnings: tuple[str, ...] = ()
+    """Degraded time-base verdicts of the streams used (:mod:`rig.quality`)."""
+    time_base: Mapping[str, StreamQuality] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, object]:
         pred = self.prediction
@@ -527,6 +540,8 @@ class RolloverReport:
             "first_warning_s": first,
             "warning_intervals_s": [list(w) for w in pred.warning_intervals],
             "truth": None,
+            "timing_warnings": list(self.timing_warnings),
+            "time_base": {k: q.to_json() for k, q in self.time_base.items()},
         }
         if self.truth_ltr is not None:
             d["truth"] = {
@@ -570,6 +585,11 @@ def rollover_session(
         inp = load_inputs(source, optical=False)
     else:
         inp = source
+    use_arx = model == "arx" or (model == "auto" and "swa" in inp.can)
+    step("time-base verdicts")
+    timing, time_base = check_inputs(
+        inp, what=f"rig rollover {inp.name}", gnss=use_arx and inp.gnss is not None, optical=False,
+        can=("lat_accel", "swa", "long_accel", "vehicle_speed") if use_arx else ("lat_accel",))
     step("LTR")
     prof = inp.profile
     v = prof.vehicle
@@ -585,7 +605,6 @@ def rollover_session(
     ltr = ltr_from_lateral(horizontal_ay(a_m, phi), phi, cg_height_m=v.cg_height_m,
                            roll_axis_height_m=v.roll_axis_height_m, track_m=track, roll_accel_rps2=phidd,
                            roll_inertia_kgm2=v.roll_inertia_kgm2, mass_kg=v.mass_kg)
-    use_arx = model == "arx" or (model == "auto" and "swa" in inp.can)
     ex: LtrExogenous | None = None
     if use_arx:
         swa = inp.signal("swa").at(grid, max_gap_s=_ROLE_MAX_GAP_S)
@@ -623,7 +642,7 @@ def rollover_session(
     return RolloverReport(
         session_name=inp.name, t_s=grid, ltr=ltr, roll_rad=phi, prediction=pred, model=pred.model,
         formula=LTR_FORMULA, truth_t_s=truth_t, truth_ltr=truth_l, ltr_error_rms=rms, ltr_error_max=mx,
-        prediction_errors=errs, evaluation=evaluation,
+        prediction_errors=errs, evaluation=evaluation, timing_warnings=timing, time_base=time_base,
     )
 
 
@@ -636,9 +655,14 @@ def rollover_session(
 class SteeringReport:
     session_name: str
     reconstruction: SteeringReconstruction
+    timing_warnings: tuple[str, ...] = ()
+    """Degraded time-base verdicts of the streams used (:mod:`rig.quality`)."""
+    time_base: Mapping[str, StreamQuality] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, object]:
-        return _clean({"session": self.session_name, **self.reconstruction.to_dict()})
+        return _clean({"session": self.session_name, **self.reconstruction.to_dict(),
+                       "timing_warnings": list(self.timing_warnings),
+                       "time_base": {k: q.to_json() for k, q in self.time_base.items()}})
 
 
 def steering_session(
@@ -658,6 +682,8 @@ def steering_session(
 
     inp = load_inputs(source, optical=False, truth=False) if isinstance(source, Path | str) else source
     gnss = inp.require_gnss()
+    timing, time_base = check_inputs(inp, what=f"rig steering reconstruct {inp.name}", can=("lat_accel", "swa"),
+                                     optical=False)
     span = np.ones(len(gnss), dtype=bool)
     if start_s is not None:
         span &= gnss.t_s >= start_s
@@ -672,7 +698,7 @@ def steering_session(
     rec = reconstruct_steering(t, speed, ay, steering_model(inp.profile),
                                swa_rad=swa, steering_ratio=_steering_ratio_fn(inp.profile),
                                min_speed_mps=min_speed_kmh / 3.6)
-    return SteeringReport(inp.name, rec)
+    return SteeringReport(inp.name, rec, timing, time_base)
 
 
 def validation_lines(sv: SessionValidation) -> list[str]:
@@ -682,6 +708,7 @@ def validation_lines(sv: SessionValidation) -> list[str]:
     lines = [
         (f"session {sv.session_name}: {sv.t_s[-1] - sv.t_s[0]:.1f} s, reference {res.reference_method}, "
         f"valid {100 * res.reference_valid_fraction:.1f} % of {sv.t_s.size} epochs"),
+        *sv.timing_warnings,
         f"estimate: {res.estimate_source}",
     ]
     if o is not None:

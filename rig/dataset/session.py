@@ -389,6 +389,11 @@ class Session:
         data = [d for tm in tms for d in tm.data]
         return log_t, pub_t, data
 
+    def message_times(self, topic: str) -> tuple[IntArray, IntArray]:
+        """(log_time, publish_time) of every message of ``topic``, in file order (used by :mod:`rig.quality`)."""
+        log_t, pub_t, _data = self._messages(topic)
+        return log_t, pub_t
+
     def _table(self, topic: str, valid: Callable[[dict[str, npt.NDArray[Any]]], BoolArray] | None = None) -> Table:
         key = ("table", topic)
         if key in self._cache:
