@@ -8,7 +8,9 @@ attachments. :func:`info_to_json` and :func:`format_info` are pure functions of 
 Fast path: a finalized part is read from its summary section (statistics, chunk indexes, metadata
 and attachment indexes) and its message-index records, which give every message's log time without
 decompressing a chunk; only the chunks holding ``/rig/events``, ``/rig/timebase`` and
-``/relay/stats`` messages are decompressed. A part without a usable summary or message index (a
+``/relay/stats`` messages are decompressed. That path does not check chunk CRCs; ``verify=True``
+(``rig info --verify``) scans every part instead, checking every chunk's CRC and the summary's, and
+reports damaged chunks ("damaged: N chunks, T s of data"). A part without a usable summary or message index (a
 crashed part, a ``rig recover`` copy) is scanned instead (:func:`rig.recorder.reader.scan_part`,
 which stops at the last complete record); the part says which way it was read (``read_via``).
 
@@ -26,10 +28,15 @@ where a value is unknown:
 - ``format``, ``version``, ``session`` (name), ``path``, ``start_ns``, ``end_ns``, ``start_utc``,
   ``end_utc``, ``duration_s`` (the span of the recorded data: every topic but ``/rig/events``, whose
   times may come from the host clock before the time base is known), ``messages``, ``truncated``
-  (a part was not finalized or damaged);
+  (a part was not finalized or damaged), ``verified`` (every chunk's CRC was checked: ``--verify``),
+  ``damaged_chunks`` and ``damaged_s`` (chunks lost to damage and the seconds of data in them; 0
+  when not verified and no damage was met);
 - ``recorder``: the recorder's metadata of the first part (software, version, host, compression, ...);
 - ``parts``: [{``index``, ``file``, ``bytes``, ``messages``, ``finalized``, ``read_via`` (summary|scan),
-  ``problem``, ``problem_kind`` (truncated|corrupt|null), ``end_reason``, ``start_ns``, ``end_ns``}];
+  ``problem``, ``problem_kind`` (truncated|corrupt|null), ``end_reason``, ``start_ns``, ``end_ns``,
+  ``damaged_chunks``, ``damaged_s``, ``damage``: [the ``details`` of each damaged region's warning
+  (``file``, ``damage``, ``offset``, ``length``, ``chunks``, ``topics``, ``messages``, ``duration_s``)
+  plus ``start_ns``, ``end_ns``, ``text``]}];
 - ``topics``: [{``topic``, ``schema``, ``encoding``, ``raw``, ``messages``, ``first_ns``, ``last_ns``,
   ``rate_hz``, ``typical_interval_s``, ``max_interval_s``, ``gap_threshold_s``, ``gap_count``,
   ``gap_total_s``, ``gaps``: [{``start_ns``, ``end_ns``, ``duration_s``}]}] (at most
@@ -41,7 +48,7 @@ where a value is unknown:
 - ``timebase``: {``records``, ``clocks``: [the last ``/rig/timebase`` record of each clock: ``clock``,
   ``method``, ``reference``, ``status``, ``n``, ``span_s``, ``offset_ns``, ``drift_ppm``, ``jitter_ns``,
   ``latency_p50_ns``, ``latency_p95_ns``, ``rms_ns``, ``max_abs_ns``, ``leap_seconds``, ``time_ns``,
-  ``records``]};
+  ``records``], ``verdicts``: {``problem``, ``streams``: {stream: :meth:`rig.quality.StreamQuality.to_json`}}};
 - ``calibration``: the calibration metadata in force, flat ``{key: value text}`` as recorded;
 - ``calibration_file``: the calibration results next to the session (``<base>.calibration.json``,
   written by ``rig calibrate-baseline`` and the other ``rig calibrate-*`` commands), or ``null`` when
@@ -77,6 +84,8 @@ import rig.topics as T  # noqa: N812 - the module is used as a namespace of topi
 from rig.recorder.reader import (
     MCAP_MAGIC,
     CorruptChunkError,
+    DamagedRegion,
+    DamageKind,
     ProblemKind,
     decompress_chunk,
     find_parts,
@@ -123,6 +132,9 @@ INFO_JSON_KEYS = (
     "duration_s",
     "messages",
     "truncated",
+    "verified",
+    "damaged_chunks",
+    "damaged_s",
     "recorder",
     "parts",
     "topics",
@@ -188,6 +200,18 @@ class PartInfo:
     """Why the recorder ended the part (``stop``, ``rollover (size)``, ``disk_full``), from its part-end record."""
     start_ns: int | None = None
     end_ns: int | None = None
+    damage: tuple[DamagedRegion, ...] = ()
+    """Damaged regions skipped (found when the part was scanned: ``verify`` or no usable summary)."""
+    verified: bool = False
+    """Every chunk CRC (and the summary CRC) of the part was checked."""
+
+    @property
+    def damaged_chunks(self) -> int:
+        return sum(max(1, len(d.chunks)) for d in self.damage if d.kind is DamageKind.CHUNK)
+
+    @property
+    def damaged_s(self) -> float:
+        return sum(d.duration_s for d in self.damage if d.kind in (DamageKind.CHUNK, DamageKind.RECORD))
 
 
 @dataclass(frozen=True, slots=True)
@@ -376,6 +400,19 @@ class SessionInfo:
         """A part was not finalized or is damaged (it was read up to its last complete record)."""
         return any(p.problem is not None or not p.finalized for p in self.parts)
 
+    @property
+    def verified(self) -> bool:
+        """Every part's chunk CRCs were checked."""
+        return all(p.verified for p in self.parts)
+
+    @property
+    def damaged_chunks(self) -> int:
+        return sum(p.damaged_chunks for p in self.parts)
+
+    @property
+    def damaged_s(self) -> float:
+        return sum(p.damaged_s for p in self.parts)
+
     def topic(self, name: str) -> TopicInfo:
         """The topic ``name`` (KeyError naming the topics present)."""
         for t in self.topics:
@@ -407,6 +444,8 @@ class _PartRead:
     problem_kind: ProblemKind | None = None
     start_ns: int | None = None
     end_ns: int | None = None
+    damage: tuple[DamagedRegion, ...] = ()
+    verified: bool = False
     topics: dict[str, tuple[str, str]] = field(default_factory=dict)
     """topic → (schema name, message encoding)."""
     counts: dict[str, int] = field(default_factory=dict)
@@ -543,6 +582,8 @@ def _read_scanned(path: Path) -> _PartRead:
         problem_kind=scan.problem_kind,
         start_ns=scan.message_start_time,
         end_ns=scan.message_end_time,
+        damage=tuple(scan.damage),
+        verified=True,
     )
     for cid, ch in scan.channels.items():
         schema = scan.schemas.get(ch.schema_id)
@@ -562,8 +603,10 @@ def _read_scanned(path: Path) -> _PartRead:
     return part
 
 
-def _read_part(path: Path) -> _PartRead:
+def _read_part(path: Path, verify: bool = False) -> _PartRead:
     try:
+        if verify:
+            return _read_scanned(path)
         return _read_indexed(path)
     except _NoIndexError:
         return _read_scanned(path)
@@ -582,11 +625,14 @@ def read_session_info(
     gap_factor: float = 5.0,
     min_gap_s: float = 0.5,
     max_gaps_listed: int = 100,
+    verify: bool = False,
 ) -> SessionInfo:
     """Summarize the session at ``path`` (its base, any part file, or a directory holding one session).
 
-    Every part is read; a truncated or damaged part is read up to its last complete record and
-    noted in :attr:`SessionInfo.warnings` (never raised). Raises
+    Every part is read; a truncated part is read up to its last complete record, a damaged one
+    around its damaged chunks, and either is noted in :attr:`SessionInfo.warnings` (never raised).
+    ``verify``: scan every part, checking every chunk's CRC and the summary's (slower; the
+    finalized parts are otherwise read from their summary without decompressing a chunk). Raises
     :class:`~vsccore.errors.SessionFileError` when no part is found, a part in the sequence is
     missing, or a file is not MCAP at all.
     """
@@ -596,7 +642,7 @@ def read_session_info(
     parts: list[_PartRead] = []
     for i, p in enumerate(files):
         try:
-            parts.append(_read_part(p))
+            parts.append(_read_part(p, verify))
         except SessionFileError as exc:
             raise SessionFileError(f"{exc} (part {i + 1} of {len(files)})") from exc
     warnings: list[str] = []
@@ -618,6 +664,8 @@ def read_session_info(
                 end_reason=end_reason,
                 start_ns=pr.start_ns,
                 end_ns=pr.end_ns,
+                damage=pr.damage,
+                verified=pr.verified,
             )
         )
         if pr.problem is not None:
@@ -626,7 +674,8 @@ def read_session_info(
                 note = "" if i == len(parts) - 1 else " — not the last part: later parts follow a crash"
                 warnings.append(f"{where}: truncated: {pr.problem}; read up to its last complete record{note}")
             else:
-                warnings.append(f"{where}: damaged: {pr.problem}; read up to the damage")
+                for d in pr.damage:
+                    warnings.append(f"{where}: {d.describe()}; every intact chunk read")
 
     metadata_first: dict[str, dict[str, str]] = {}
     for pr in parts:
@@ -966,6 +1015,11 @@ def _event_json(e: EventLine) -> dict[str, Any]:
             "source": e.source, "text": e.text}
 
 
+def _damage_json(d: DamagedRegion, path: Path) -> dict[str, Any]:
+    ev = d.event(path)
+    return {**ev.details, "start_ns": ev.start_ns, "end_ns": ev.end_ns, "text": d.describe()}
+
+
 def info_to_json(info: SessionInfo) -> dict[str, Any]:
     """The JSON document of ``rig info --json`` (keys :data:`INFO_JSON_KEYS`, see the module docstring)."""
     doc: dict[str, Any] = {
@@ -980,6 +1034,9 @@ def info_to_json(info: SessionInfo) -> dict[str, Any]:
         "duration_s": _round(info.duration_s, 9),
         "messages": info.messages,
         "truncated": info.truncated,
+        "verified": info.verified,
+        "damaged_chunks": info.damaged_chunks,
+        "damaged_s": _round(info.damaged_s, 9),
         "recorder": dict(info.recorder),
         "parts": [
             {
@@ -994,6 +1051,9 @@ def info_to_json(info: SessionInfo) -> dict[str, Any]:
                 "end_reason": p.end_reason,
                 "start_ns": p.start_ns,
                 "end_ns": p.end_ns,
+                "damaged_chunks": p.damaged_chunks,
+                "damaged_s": _round(p.damaged_s, 9),
+                "damage": [_damage_json(d, p.path) for d in p.damage],
             }
             for p in info.parts
         ],
@@ -1184,12 +1244,22 @@ def format_info(info: SessionInfo, *, max_list: int = 20) -> str:
     out: list[str] = []
     n_parts = len(info.parts)
     bad = sum(1 for p in info.parts if p.problem is not None or not p.finalized)
-    state = f", {bad} not finalized" if bad else ""
+    damaged = sum(1 for p in info.parts if p.damage)
+    state = f", {bad} not finalized" if bad - damaged > 0 else ""
+    state += f", {damaged} damaged" if damaged else ""
     out.append(f"session    {info.name}  ({n_parts} part{'s' if n_parts != 1 else ''}{state})  {info.path}")
     dur = info.duration_s
     out.append(f"time       {format_utc(info.start_ns)} → {format_utc(info.end_ns)}  "
                f"({'-' if dur is None else f'{dur:.3f} s'})")
     out.append(f"messages   {info.messages}")
+    if info.damaged_chunks or any(p.damage for p in info.parts):
+        out.append(f"integrity  damaged: {info.damaged_chunks} chunks, {info.damaged_s:.3f} s of data "
+                   f"({'every chunk CRC checked' if info.verified else 'met while scanning'}; "
+                   "`rig recover` keeps every intact chunk)")
+    elif info.verified:
+        out.append("integrity  every chunk CRC checked: no damage")
+    else:
+        out.append("integrity  chunk CRCs not checked (rig info --verify checks them)")
     if info.recorder:
         r = info.recorder
         out.append(f"recorder   {r.get('software', '?')} {r.get('version', '')} on {r.get('host', '?')}, "
@@ -1199,7 +1269,8 @@ def format_info(info: SessionInfo, *, max_list: int = 20) -> str:
     out.append("parts")
     rows: list[tuple[str, ...]] = [("file", "size", "messages", "state", "read via", "ended")]
     for p in info.parts:
-        st = "finalized" if p.finalized and p.problem is None else (p.problem_kind or "unfinished").upper()
+        st = "finalized" if p.finalized and p.problem is None else (
+            "DAMAGED" if p.damage else (p.problem_kind or "unfinished").upper())
         rows.append((p.path.name, _size(p.size_bytes), str(p.messages), str(st), p.read_via.value, p.end_reason or "-"))
     out.extend(_table(rows, (False, True, True, False, False, False)))
     for p in info.parts:

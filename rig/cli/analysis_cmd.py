@@ -7,7 +7,10 @@
     rig steering reconstruct sessions/run1 [--json]
 
 Exit status of ``rig validate``: 0 when the estimate passes the configured tolerances, 1 when it
-fails them (so a CI script can gate on it), 2 on an error (unreadable session, bad option).
+fails them (so a CI script can gate on it), 2 on an error (unreadable session, bad option) and when
+a stream the result uses has an unusable time base (:mod:`rig.quality`; the message names the stream,
+the figure and the fix). A degraded stream is a ``TIMING DEGRADED`` line in the output and the JSON
+(``timing_warnings``, ``time_base``), as for ``rig rollover`` and ``rig steering reconstruct``.
 """
 
 from __future__ import annotations
@@ -196,7 +199,7 @@ def validate(
     from rig.report import write_metrics_csv, write_validation_report
     from rig.validate import validate_session, validation_lines
 
-    with _progress(not no_progress, 7) as step:
+    with _progress(not no_progress, 8) as step:
         sv = validate_session(session, estimator=estimator, method=ReferenceMethod(method.value), progress=step)
         if report is not None:
             step("report")
@@ -248,6 +251,8 @@ def rollover(
     d = rep.to_dict()
     typer.echo(f"session {rep.session_name}: {d['duration_s']:.1f} s, peak |LTR| {d['peak_abs_ltr']:.3f}, "
                f"model {rep.model}")
+    for w in rep.timing_warnings:
+        typer.echo(w)
     typer.echo(f"formula: {rep.formula}")
     first = rep.prediction.first_warning_s()
     if first is None:
@@ -288,6 +293,8 @@ def reconstruct_cmd(
     typer.echo(f"session {rep.session_name}: δ reconstructed vs SWA / ratio: mean |error| "
                f"{f(d['mean_abs_error_deg'], '°')}, max |error| {f(d['max_abs_error_deg'], '°')}, "
                f"max relative error at the peaks {f(d['max_relative_error_at_peaks_percent'], ' %')}")
+    for w in rep.timing_warnings:
+        typer.echo(w)
 
 
 def register(app: typer.Typer) -> None:

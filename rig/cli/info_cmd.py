@@ -25,6 +25,9 @@ def info(
     ] = 5.0,
     min_gap_s: Annotated[float, typer.Option("--min-gap", help="Shortest interval reported as a gap (s).")] = 0.5,
     max_list: Annotated[int, typer.Option("--max-list", help="Longest list of gaps or events in the text.")] = 20,
+    verify: Annotated[
+        bool, typer.Option("--verify", help="Check every chunk's CRC (reads all data); report damaged chunks.")
+    ] = False,
 ) -> None:
     """Duration, topics with counts and rates, devices, gaps, time-base quality, calibration and events."""
     from rig.inspect import format_info, info_to_json, read_session_info
@@ -32,7 +35,7 @@ def info(
     if gap_factor <= 1.0 or min_gap_s < 0 or max_list < 0:
         raise ConfigError(f"--gap-factor must be > 1, --min-gap >= 0 and --max-list >= 0 "
                           f"(got {gap_factor}, {min_gap_s}, {max_list})")
-    summary = read_session_info(file, gap_factor=gap_factor, min_gap_s=min_gap_s)
+    summary = read_session_info(file, gap_factor=gap_factor, min_gap_s=min_gap_s, verify=verify)
     if as_json:
         typer.echo(json.dumps(info_to_json(summary), indent=1))
     else:

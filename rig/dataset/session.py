@@ -42,7 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 import rig.topics as T  # noqa: N812 - the module is used as a namespace of topic names
-from rig.recorder.reader import PartScan, ProblemKind, TopicMessages, find_parts, scan_part
+from rig.recorder.reader import DamagedRegion, PartScan, TopicMessages, find_parts, scan_part
 from rig.timebase import ClockEstimator, SyncFit, align_sync_pulses
 from vsccore.errors import AnalysisError, ConfigError, DecodeError, SessionFileError
 from vsccore.gpstime import GPS_EPOCH_UNIX_NS
@@ -337,7 +337,9 @@ class Session:
         self._gnss_min_latency_s = gnss_min_latency_s
         self.parts: tuple[Path, ...] = tuple(s.path for s in scans)
         self.warnings: tuple[str, ...] = tuple(warnings)
-        """Problems tolerated while reading (a truncated last part)."""
+        """Problems tolerated while reading (a truncated last part, damaged chunks skipped)."""
+        self.damage: tuple[tuple[Path, DamagedRegion], ...] = tuple((s.path, d) for s in scans for d in s.damage)
+        """Damaged regions skipped while reading, by part (every intact chunk was read)."""
         self._topics: dict[str, list[TopicMessages]] = {}
         self._counts: dict[str, int] = {}
         for s in scans:
@@ -362,6 +364,10 @@ class Session:
         self._cache: dict[Any, Any] = {}
 
     # --- basics -----------------------------------------------------------------------------
+
+    def damage_events(self) -> list[T.Event]:
+        """Each damaged region skipped while reading, as a ``/rig/events``-style warning (time span, topics)."""
+        return [d.event(path) for path, d in self.damage]
 
     @property
     def topic_counts(self) -> dict[str, int]:
@@ -1189,11 +1195,14 @@ def load_session(
     Messages are kept for ``topics`` (exact names), else for ``include(topic)``, else for every topic
     except the per-frame CAN role JSON and raw byte streams. A truncated *last* part (a killed
     recorder) is read up to its last complete chunk and noted in :attr:`Session.warnings` (unless
-    ``allow_truncated`` is False). ``gnss_min_latency_s``: a constant GNSS log latency to use instead
+    ``allow_truncated`` is False). A damaged chunk or record is skipped, every intact chunk before and
+    after it is read, and the damage is named in :attr:`Session.warnings` and :attr:`Session.damage`
+    (:meth:`Session.damage_events` gives it as ``/rig/events``-style warnings).
+    ``gnss_min_latency_s``: a constant GNSS log latency to use instead
     of each log's known latency (:meth:`Session.gnss_log_latency_ns`: the receiver's configured output
     latency plus the log's serial transmission time), for sessions whose configuration lacks them.
     Raises :class:`~vsccore.errors.SessionFileError` naming the file
-    and part for a missing part, a damaged part, or an unfinished part that is not the last.
+    and part for a missing part, a file that is not MCAP, or an unfinished part that is not the last.
     """
     parts = find_parts(path)
     want: Callable[[str], bool]
@@ -1210,13 +1219,16 @@ def load_session(
             scan = scan_part(p, want=want)
         except SessionFileError as exc:
             raise SessionFileError(f"{where}: {exc}") from exc
-        if scan.problem is not None:
+        for region in scan.damage:  # salvaged: every intact chunk is read, the damaged ones are named
+            warnings.append(f"{where}: {region.describe()}; read every intact chunk")
+            log.warning("%s", warnings[-1])
+        if scan.truncation is not None:
             last = i == len(parts) - 1
-            if scan.problem_kind is ProblemKind.TRUNCATED and last and allow_truncated:
-                warnings.append(f"{where}: {scan.problem}; read up to its last complete record")
+            if last and allow_truncated:
+                warnings.append(f"{where}: {scan.truncation}; read up to its last complete record")
                 log.warning("%s", warnings[-1])
             else:
-                raise SessionFileError(f"{where}: {scan.problem}")
+                raise SessionFileError(f"{where}: {scan.truncation}")
         scans.append(scan)
     return Session(Path(path), scans, warnings, gnss_min_latency_s)
 

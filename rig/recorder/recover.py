@@ -15,10 +15,11 @@ reader opens (the chunks themselves are kept byte for byte, not re-compressed).
 from __future__ import annotations
 
 import logging
+import os
 import shutil
 import struct
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
@@ -32,15 +33,26 @@ from mcap.records import (
     Footer,
     Header,
     McapRecord,
+    Metadata,
     MetadataIndex,
     Statistics,
     SummaryOffset,
 )
 
-from rig.recorder.reader import MCAP_MAGIC, PartScan, ProblemKind, scan_part
+from rig.recorder.reader import (
+    MCAP_MAGIC,
+    DamagedRegion,
+    DamageKind,
+    PartScan,
+    ProblemKind,
+    scan_part,
+    session_base,
+)
+from rig.topics import METADATA_PART_END
 from vsccore.errors import SessionFileError
 
-__all__ = ["RecoverReport", "finalize_in_place", "recover", "summary_bytes"]
+__all__ = ["RecoverReport", "finalize_in_place", "recover", "remove_stale_reserve",
+           "remove_stale_reserves", "reserve_is_stale", "reserve_path", "summary_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +71,7 @@ class RecoverReport:
     kept_bytes: int
     """Bytes of the original data section kept."""
     dropped_bytes: int
-    """Bytes after the last complete record, discarded."""
+    """Bytes discarded: damaged regions and what follows the last complete record."""
     problem: str | None
     """Why the original was incomplete (None: it was complete)."""
     problem_kind: ProblemKind | None
@@ -69,19 +81,56 @@ class RecoverReport:
     """The result ends with a summary and footer."""
     error: str | None = None
     """Why finalizing failed (then the file is still readable up to its last complete record)."""
+    damage: tuple[DamagedRegion, ...] = ()
+    """Damaged regions of the original that were left out."""
+    truncation: str | None = None
+    """Why the original ended early (None: it did not)."""
+
+    @property
+    def damaged_chunks(self) -> int:
+        return sum(max(1, len(d.chunks)) for d in self.damage if d.kind is DamageKind.CHUNK)
+
+    @property
+    def damaged_s(self) -> float:
+        return sum(d.duration_s for d in self.damage if d.kind in (DamageKind.CHUNK, DamageKind.RECORD))
 
 
-def summary_bytes(scan: PartScan, summary_start: int) -> bytes:
-    """DataEnd, summary section, footer and closing magic for the records found by ``scan``.
+OffsetMap = Callable[[int], int]
+"""Maps a record's offset in the original part to its offset in the file being written."""
 
-    ``summary_start`` is the offset at which the DataEnd record will be written (the scan's
-    ``data_end``); the returned bytes are appended there.
+
+def summary_bytes(
+    scan: PartScan,
+    summary_start: int,
+    *,
+    offset_of: OffsetMap | None = None,
+    extra_metadata: Sequence[Metadata] = (),
+) -> bytes:
+    """Records appended at ``summary_start`` to finish a file holding the records found by ``scan``.
+
+    ``summary_start`` is where the first returned byte will be written. From there: the leading
+    magic and a header if ``summary_start`` is before the end of where they belong (an empty or tiny
+    part), ``extra_metadata`` records (e.g. a part-end record written after a failure), DataEnd,
+    the summary section (schemas, channels, statistics, chunk/attachment/metadata indexes), the
+    footer and the closing magic. ``offset_of`` maps the scan's record offsets to those in the file
+    written (default: unchanged).
     """
+    where = offset_of or (lambda off: off)
     head = RecordBuilder()
+    prefix = b""
+    if summary_start < len(MCAP_MAGIC):  # not even the magic survived: start the file over
+        prefix = MCAP_MAGIC
+        summary_start = 0
     if summary_start <= len(MCAP_MAGIC):  # killed before even the header was complete
         Header(profile="", library="vsc-rig recover").write(head)
+    base = summary_start + len(prefix)  # file offset of head's first byte
+    extra_refs: list[MetadataIndex] = []
+    for md in extra_metadata:
+        at = base + head.count
+        md.write(head)
+        extra_refs.append(MetadataIndex(offset=at, length=base + head.count - at, name=md.name))
     DataEnd(0).write(head)  # 0: no data-section CRC (the recorder does not compute one)
-    head_bytes = head.end()
+    head_bytes = prefix + head.end()
     start = summary_start + len(head_bytes)
     b = RecordBuilder()
     offsets: list[SummaryOffset] = []
@@ -93,6 +142,7 @@ def summary_bytes(scan: PartScan, summary_start: int) -> bytes:
         if b.count > g0:
             offsets.append(SummaryOffset(group_opcode=opcode, group_start=start + g0, group_length=b.count - g0))
 
+    t0 = [c.message_start_time for c in scan.chunks] + ([scan.message_start_time] if scan.message_start_time else [])
     stats = Statistics(
         attachment_count=len(scan.attachments),
         channel_count=len(scan.channels),
@@ -100,14 +150,14 @@ def summary_bytes(scan: PartScan, summary_start: int) -> bytes:
         chunk_count=len(scan.chunks),
         message_count=scan.message_count,
         message_end_time=scan.message_end_time or 0,
-        message_start_time=scan.message_start_time or 0,
-        metadata_count=len(scan.metadata),
+        message_start_time=min(t0) if t0 and scan.message_count else 0,
+        metadata_count=len(scan.metadata) + len(extra_metadata),
         schema_count=len(scan.schemas),
     )
     chunk_indexes = [
         ChunkIndex(
             chunk_length=c.length,
-            chunk_start_offset=c.offset,
+            chunk_start_offset=where(c.offset),
             compression=c.compression,
             compressed_size=c.compressed_size,
             message_end_time=c.message_end_time,
@@ -120,7 +170,7 @@ def summary_bytes(scan: PartScan, summary_start: int) -> bytes:
     ]
     attachment_indexes = [
         AttachmentIndex(
-            offset=ref.offset,
+            offset=where(ref.offset),
             length=ref.length,
             log_time=a.log_time,
             create_time=a.create_time,
@@ -130,7 +180,9 @@ def summary_bytes(scan: PartScan, summary_start: int) -> bytes:
         )
         for a, ref in scan.attachments
     ]
-    metadata_indexes = [MetadataIndex(offset=ref.offset, length=ref.length, name=m.name) for m, ref in scan.metadata]
+    metadata_indexes = [
+        MetadataIndex(offset=where(ref.offset), length=ref.length, name=m.name) for m, ref in scan.metadata
+    ] + extra_refs
     group(Opcode.SCHEMA, list(scan.schemas.values()))
     group(Opcode.CHANNEL, list(scan.channels.values()))
     group(Opcode.STATISTICS, [stats])
@@ -153,9 +205,11 @@ def _default_opener(path: Path, mode: str) -> IO[bytes]:
 
 
 def _default_fsync(stream: IO[bytes]) -> None:
-    import os
-
     os.fsync(stream.fileno())
+
+
+PartEnd = Callable[[PartScan], Mapping[str, str]]
+"""Builds a part-end metadata record (:data:`rig.topics.METADATA_PART_END`) from the scan of what survived."""
 
 
 def finalize_in_place(
@@ -163,12 +217,15 @@ def finalize_in_place(
     *,
     opener: Opener | None = None,
     fsync: Callable[[IO[bytes]], None] | None = None,
+    part_end: PartEnd | None = None,
 ) -> RecoverReport:
     """Cut ``path`` after its last complete record and append a summary; never raises for damage.
 
-    A part that is already finalized is left untouched. If the summary cannot be written (e.g. the
-    disk is still full) the file is cut at its last complete record, which stays readable by
-    :func:`rig.recorder.reader.scan_part`, and the report says why (``error``).
+    A part that is already finalized is left untouched. A part too short to hold even the magic
+    and header becomes a valid empty MCAP file. ``part_end`` (the recorder's, after a write
+    failure) adds a part-end metadata record saying what was lost. If the summary cannot be written
+    (e.g. the disk is still full) the file is cut at its last complete record, which stays readable
+    by :func:`rig.recorder.reader.scan_part`, and the report says why (``error``).
     """
     p = Path(path)
     open_ = opener or _default_opener
@@ -176,11 +233,13 @@ def finalize_in_place(
     scan = scan_part(p, collect=False)
     if scan.finalized and scan.problem is None:
         return _report(p, scan, was_finalized=True, finalized=True)
-    tail = summary_bytes(scan, scan.data_end)
+    cut = scan.data_end if scan.data_end >= len(MCAP_MAGIC) else 0
+    extra = [Metadata(name=METADATA_PART_END, metadata=dict(part_end(scan)))] if part_end is not None else []
+    tail = summary_bytes(scan, cut, extra_metadata=extra)
     try:
         with open_(p, "r+b") as f:
-            f.seek(scan.data_end)
-            f.truncate(scan.data_end)
+            f.seek(cut)
+            f.truncate(cut)
             f.write(tail)
             f.flush()
             sync(f)
@@ -188,17 +247,113 @@ def finalize_in_place(
         log.error("cannot finalize %s: %s", p, exc)
         try:
             with open_(p, "r+b") as f:
-                f.truncate(scan.data_end)
+                f.truncate(cut)
         except OSError:
             log.warning("cannot cut %s at its last complete record; readers stop there anyway", p)
         return _report(p, scan, was_finalized=False, finalized=False, error=str(exc))
     return _report(p, scan, was_finalized=False, finalized=True)
 
 
-def recover(src: Path | str, dst: Path | str | None = None, *, overwrite: bool = False) -> RecoverReport:
-    """Write a finalized, indexed copy of ``src`` with everything up to its last complete record.
+def _segments(scan: PartScan, header_end: int) -> list[tuple[int, int]]:
+    """The byte ranges of the data section to keep (after the header): ``[header_end, data_end)`` minus damage."""
+    keep: list[tuple[int, int]] = []
+    pos = header_end
+    for d in sorted(scan.damage, key=lambda d: d.offset):
+        if d.kind not in (DamageKind.CHUNK, DamageKind.RECORD) or d.offset + d.length <= pos:
+            continue
+        if d.offset >= scan.data_end:
+            break
+        if d.offset > pos:
+            keep.append((pos, d.offset))
+        pos = max(pos, d.offset + d.length)
+    if pos < scan.data_end:
+        keep.append((pos, scan.data_end))
+    return keep
 
-    ``dst`` defaults to ``<src stem>.recovered.mcap`` beside it. Raises
+
+def reserve_path(base: Path) -> Path:
+    """The disk-space reserve file of the session whose base path is ``base`` (``<base>.reserve``)."""
+    return base.with_name(base.name + ".reserve")
+
+
+def lock_reserve(path: Path) -> int | None:
+    """Hold an exclusive lock on the reserve file ``path`` while recording (the descriptor; None: no locks here).
+
+    The lock tells :func:`reserve_is_stale` that a recorder is alive; the kernel drops it when the
+    process dies, however it dies.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows: an open file cannot be deleted there anyway
+        return None
+    fd = os.open(path, os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        raise
+    return fd
+
+
+def reserve_is_stale(path: Path) -> bool:
+    """No living recorder holds the reserve file ``path`` (a kill -9 left it behind)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover
+        return True
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    finally:
+        os.close(fd)  # closing drops the lock taken just now
+    return True
+
+
+def remove_stale_reserves(directory: Path) -> list[Path]:
+    """Delete every stale disk-space reserve (``*.reserve``) in ``directory``; returns those removed."""
+    removed = []
+    for f in sorted(directory.glob("*.reserve")):
+        if f.is_file() and reserve_is_stale(f):
+            try:
+                f.unlink()
+            except OSError as exc:
+                log.warning("cannot remove the stale reserve %s: %s", f, exc)
+                continue
+            log.info("removed the stale disk-space reserve %s", f)
+            removed.append(f)
+    return removed
+
+
+def remove_stale_reserve(part: Path) -> Path | None:
+    """Delete the disk-space reserve (``<base>.reserve``) that a killed recorder of ``part``'s session left.
+
+    A reserve that a running recorder holds (it keeps a lock on it) is left alone. Returns the file
+    removed, or None.
+    """
+    reserve = reserve_path(session_base(part))
+    if reserve.exists() and reserve_is_stale(reserve):
+        try:
+            reserve.unlink()
+        except OSError as exc:
+            log.warning("cannot remove the stale reserve %s: %s", reserve, exc)
+            return None
+        log.info("removed the stale disk-space reserve %s", reserve)
+        return reserve
+    return None
+
+
+def recover(src: Path | str, dst: Path | str | None = None, *, overwrite: bool = False) -> RecoverReport:
+    """Write a finalized, indexed copy of ``src`` with every intact record, before and after any damage.
+
+    ``dst`` defaults to ``<src stem>.recovered.mcap`` beside it. The header, every intact chunk,
+    message index, metadata and attachment record are copied byte for byte; damaged regions are
+    left out (the report lists them); a part too short for even the magic gives a valid empty file.
+    The disk-space reserve a killed recorder left beside the part is removed. Raises
     :class:`~vsccore.errors.SessionFileError` when ``src`` is not an MCAP file or ``dst`` exists
     (unless ``overwrite``).
     """
@@ -209,18 +364,48 @@ def recover(src: Path | str, dst: Path | str | None = None, *, overwrite: bool =
     if d.exists() and not overwrite:
         raise SessionFileError(f"{d} already exists (remove it or pass overwrite)")
     scan = scan_part(s, collect=False)
-    keep = scan.data_end
     tmp = d.with_name(d.name + ".partial")
     try:
         with open(s, "rb") as fin, open(tmp, "wb") as fout:
-            left = keep
-            while left > 0:
-                block = fin.read(min(left, 1 << 22))
-                if not block:
-                    raise SessionFileError(f"{s}: shorter than when it was scanned")
-                fout.write(block)
-                left -= len(block)
-            fout.write(summary_bytes(scan, keep))
+            out = RecordBuilder()
+            header_end = len(MCAP_MAGIC)
+            if scan.header_ok:
+                fin.seek(len(MCAP_MAGIC))
+                _op, ln = struct.unpack("<BQ", fin.read(9))
+                header_end = len(MCAP_MAGIC) + 9 + ln
+                fin.seek(len(MCAP_MAGIC))
+                head = MCAP_MAGIC + _read_exactly(fin, header_end - len(MCAP_MAGIC), s)
+            else:
+                Header(profile="", library="vsc-rig recover").write(out)
+                head = MCAP_MAGIC
+            # channels whose Channel record was lost with a damaged chunk: defined again up front
+            lost = [scan.channels[c] for c in sorted(scan.channels_from_summary)]
+            for sid in sorted({c.schema_id for c in lost if c.schema_id}):
+                if sid in scan.schemas:
+                    scan.schemas[sid].write(out)
+            for ch in lost:
+                ch.write(out)
+            head += out.end()
+            fout.write(head)
+            moved: list[tuple[int, int, int]] = []  # (old start, old end, new start)
+            at = len(head)
+            for a, b in _segments(scan, header_end):
+                moved.append((a, b, at))
+                fin.seek(a)
+                left = b - a
+                while left > 0:
+                    block = _read_exactly(fin, min(left, 1 << 22), s)
+                    fout.write(block)
+                    left -= len(block)
+                at += b - a
+
+            def offset_of(off: int) -> int:
+                for a, b, n in moved:
+                    if a <= off < b:
+                        return n + off - a
+                raise SessionFileError(f"{s}: record at offset {off} is not in a kept range (scanner bug)")
+
+            fout.write(summary_bytes(scan, at, offset_of=offset_of))
             fout.flush()
             _default_fsync(fout)
         shutil.move(tmp, d)
@@ -229,22 +414,34 @@ def recover(src: Path | str, dst: Path | str | None = None, *, overwrite: bool =
         if isinstance(exc, SessionFileError):
             raise
         raise SessionFileError(f"{d}: cannot write the recovered copy of {s}: {exc}") from exc
+    remove_stale_reserve(s)
     log.info("recovered %s -> %s (%d messages)", s, d, scan.message_count)
     return _report(d, scan, was_finalized=scan.finalized and scan.problem is None, finalized=True)
+
+
+def _read_exactly(f: IO[bytes], n: int, path: Path) -> bytes:
+    data = f.read(n)
+    if len(data) != n:
+        raise SessionFileError(f"{path}: shorter than when it was scanned")
+    return data
 
 
 def _report(
     p: Path, scan: PartScan, *, was_finalized: bool, finalized: bool, error: str | None = None
 ) -> RecoverReport:
+    damaged = sum(d.length for d in scan.damage if d.kind in (DamageKind.CHUNK, DamageKind.RECORD)
+                  and d.offset < scan.data_end)
     return RecoverReport(
         path=p,
         messages=scan.message_count,
         chunks=len(scan.chunks),
-        kept_bytes=scan.data_end,
-        dropped_bytes=max(0, scan.size - scan.data_end) if not was_finalized else 0,
+        kept_bytes=scan.data_end - damaged,
+        dropped_bytes=max(0, scan.size - scan.data_end) + damaged if not was_finalized else 0,
         problem=scan.problem,
         problem_kind=scan.problem_kind,
         was_finalized=was_finalized,
         finalized=finalized,
         error=error,
+        damage=tuple(scan.damage),
+        truncation=scan.truncation,
     )

@@ -123,10 +123,16 @@ def test_fast_path_agrees_with_full_scan(synth: Synth, monkeypatch: pytest.Monke
     monkeypatch.setattr(inspect_mod, "_read_indexed", no_index)
     slow = info_to_json(read_session_info(synth.base))
     assert {p["read_via"] for p in slow["parts"]} == {"scan"}
-    for doc in (fast, slow):
+    # only the scan checks chunk CRCs; --verify asks for it
+    assert (fast["verified"], slow["verified"]) == (False, True)
+    monkeypatch.undo()
+    verified = info_to_json(read_session_info(synth.base, verify=True))
+    for doc in (fast, slow, verified):
+        doc.pop("verified")
         for p in doc["parts"]:
             p.pop("read_via")
-    assert fast == slow
+    assert fast == slow == verified
+    assert verified["damaged_chunks"] == 0
 
 
 def test_recovered_copy_without_message_index_is_scanned(synth: Synth, tmp_path: Path) -> None:

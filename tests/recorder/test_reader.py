@@ -77,9 +77,12 @@ def test_damaged_chunk_is_corruption_not_truncation(small_part: Path, tmp_path: 
     bad = scan_part(f)
     assert bad.problem_kind is ProblemKind.CORRUPT
     assert f"offset {chunk.offset}" in (bad.problem or "")
-    assert len(bad.chunks) == 3  # everything before the damaged chunk is kept
+    # every other chunk, before and after the damaged one, is kept
+    assert [c.offset for c in bad.chunks] == [c.offset for c in scan.chunks if c.offset != chunk.offset]
+    assert [d.chunks for d in bad.damage] == [(3,)]
     with pytest.raises(SessionFileError, match=r"bad\.mcap"):
         bad.check(allow_truncated=True)
+    bad.check(allow_truncated=True, allow_damaged=True)
     f.write_bytes(b"not an mcap file at all")
     with pytest.raises(SessionFileError, match="not an MCAP file"):
         scan_part(f)
