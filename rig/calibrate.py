@@ -53,6 +53,7 @@ from calibration.segments import (
 )
 from calibration.steering import SteeringRatioTable, antenna_to_rear_axle, steering_ratio_from_circles
 from rig.config import ImuCalibrationConfig, SessionConfig, load_profile
+from rig.quality import check_inputs
 from rig.sessiondata import DualGnss, SessionInputs
 from vsccore.angles import unwrap, wrap_2pi, wrap_pi
 from vsccore.errors import CalibrationError, ConfigError
@@ -305,6 +306,7 @@ def calibrate_baseline(inputs: SessionInputs, options: BaselineOptions | None = 
     opts = options or BaselineOptions()
     opts.check()
     g = inputs.require_gnss()
+    timing, _verdicts = check_inputs(inputs, what=f"rig calibrate-baseline {inputs.name}", can=("yaw_rate",))
     ant = inputs.profile.antennas
     nominal = ant.baseline_length_m
     tol = opts.length_tolerance_m if opts.length_tolerance_m is not None else ant.baseline_tolerance_m
@@ -362,7 +364,7 @@ def calibrate_baseline(inputs: SessionInputs, options: BaselineOptions | None = 
         optical_skipped=skipped,
         truth_offset_deg=float(truth_off) if isinstance(truth_off, int | float) else None,
         truth_optical_zero_deg={str(k): float(v) for k, v in tz.items()} if isinstance(tz, Mapping) else {},
-        warnings=(*warnings, *(f"session: {w}" for w in inputs.warnings)),
+        warnings=(*timing, *warnings, *(f"session: {w}" for w in inputs.warnings)),
         plot_data={"t": g.t_s, "speed": g.speed_mps, "diff": d, "length": g.baseline_length_m,
                    "fixed": fixed.astype(float)},
     )
@@ -554,6 +556,8 @@ def calibrate_steering_ratio(inputs: SessionInputs, options: SteeringOptions | N
     o = options or SteeringOptions()
     g = inputs.require_gnss()
     swa_sig = inputs.signal("swa")
+    timing, _verdicts = check_inputs(inputs, what=f"rig calibrate-steering-ratio {inputs.name}",
+                                     can=("swa", "yaw_rate"), optical=False)
     offset = math.radians(inputs.profile.calibration.mount_offset_deg)
     heading = g.heading_rad(offset)
     ok = g.valid & g.rtk_fixed_both
@@ -589,7 +593,7 @@ def calibrate_steering_ratio(inputs: SessionInputs, options: SteeringOptions | N
                 truth_ratio[i] = float(np.mean(sw) / np.mean(rwa))
     return SteeringCalibration(
         session=inputs.name, table=table, segments=tuple(segs), mount_offset_deg=math.degrees(offset),
-        truth_ratio=truth_ratio, warnings=tuple(f"session: {w}" for w in inputs.warnings),
+        truth_ratio=truth_ratio, warnings=(*timing, *(f"session: {w}" for w in inputs.warnings)),
         plot_data={"t": g.t_s, "e": e, "n": n, "swa": swa, "v": v},
     )
 

@@ -268,6 +268,7 @@ th { background: #eee; } td:first-child { text-align: left; }
 .pass { background: #d8f5d0; } .fail { background: #f8d0d0; }
 .verdict { font-size: 1.4em; padding: 0.3em 0.8em; display: inline-block; }
 img { max-width: 100%; } .warn { color: #a60; }
+.timing { background: #ffe7a8; border: 2px solid #c80; font-weight: bold; padding: 0.4em 0.8em; }
 """
 
 _MANOEUVRE_COLUMNS = (
@@ -365,6 +366,7 @@ def _html(sv: SessionValidation, embedded: Sequence[tuple[str, str]]) -> str:
         f"<title>rig validate — {html.escape(sv.session_name)}</title><style>{_CSS}</style></head><body>",
         f"<h1>VSC sideslip validation — {html.escape(sv.session_name)}</h1>",
         f"<p class='verdict {cls}'>{verdict}</p>",
+        *(f"<p class='timing'>{html.escape(w)}</p>" for w in sv.timing_warnings),
         "<ul>",
         f"<li>session: <code>{html.escape(str(sv.session_path))}</code></li>",
         f"<li>estimate: {html.escape(res.estimate_source)}</li>",
@@ -379,7 +381,15 @@ def _html(sv: SessionValidation, embedded: Sequence[tuple[str, str]]) -> str:
     if overall is not None and overall.failures:
         parts.append("<p class='fail'>failed: " + html.escape("; ".join(overall.failures)) + "</p>")
     for w in sv.warnings:
-        parts.append(f"<p class='warn'>warning: {html.escape(w)}</p>")
+        if w not in sv.timing_warnings:
+            parts.append(f"<p class='warn'>warning: {html.escape(w)}</p>")
+    if sv.time_base:
+        parts.append("<h2>Time base of the streams used</h2>")
+        qrows: list[dict[str, object]] = [{"kind": name, "n": q.verdict.value,
+                  "note": "; ".join([f.text() for f in q.figures] + [g.text() for g in q.gaps] + ([q.note] if q.note
+                                                                                                 else []))}
+                 for name, q in sv.time_base.items()]
+        parts.append(_table(qrows, (("kind", "stream"), ("n", "verdict"), ("note", "figures (thresholds), gaps"))))
     parts.append("<h2>Overall and per manoeuvre kind</h2>")
     rows = [_metrics_row("overall (without low speed)", overall)]
     rows.extend(_metrics_row(s.kind.value if s.kind else "?", s.metrics) for s in res.per_kind)

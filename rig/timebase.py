@@ -519,6 +519,31 @@ class ClockEstimator:
         r = np.asarray([p[1] for p in pairs], dtype=np.int64)
         return (r - m(d)).astype(np.float64)
 
+    def envelope_error_ns(self, percentile: float = 95.0, group_s: float = 1.0) -> float | None:
+        """How far the envelope can be off: ``percentile`` of |lowest pair − map| per ``group_s`` (ns).
+
+        Each bin (``bin_s`` of device time) keeps its lowest pair; the bins are grouped by ``group_s``
+        of device time (at least one bin). On a clean link every group holds a message that came
+        through at the latency floor, so its minimum lies on the map (tens to hundreds of µs, the
+        latency's own scatter). A group whose every message was late (a starved reader, a backlog
+        sent in a burst) has its minimum far above it: the map there rests on other groups, and its
+        error is unknown up to that height. None before two bins exist.
+        """
+        with self._lock:
+            if self._n == 0:
+                return None
+            x, y = self._points()
+            x0, base = self._x0, self._y_base
+        if x.size < 2 or x0 is None:
+            return None
+        m = self.mapping()
+        dev = x0 + x.astype(np.int64)
+        ref = dev + base + y.astype(np.int64)
+        r = np.abs(ref - m(dev)).astype(np.float64)
+        group = (x // max(int(group_s * 1e9), self._bin_ns)).astype(np.int64)
+        starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+        return float(np.percentile(np.minimum.reduceat(r, starts), percentile))
+
     def quality(self, leap_seconds: int | None = None) -> ClockQuality:
         """The record for ``/rig/timebase``."""
         st = self.status()

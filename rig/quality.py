@@ -1,0 +1,545 @@
+"""Time-base quality of every stream of a session: a verdict good / degraded / unusable, and the gates.
+
+A result computed from a stream whose timing cannot be trusted is not a result. This module turns
+what a session file holds (the message times, the raw CAN stamps, ``/rig/timebase``) into one
+:class:`StreamQuality` per stream — ``gnss:<receiver>``, ``can:<bus>``, ``daq:<device>`` — with the
+figures, the thresholds they were judged against and the fix, and :func:`gate` makes every command
+that uses a stream check it: degraded → a warning that the command shows in its headline, unusable →
+:class:`TimingQualityError` (exit status 2) naming the stream, the figure and the fix.
+
+The figures (each judged by :data:`THRESHOLDS`, the one place the limits live):
+
+- ``timing_error_ms`` (CAN, DAQ): how far a sample's time on the common base can be off. For a
+  stream with device stamps it is the envelope error of the device clock
+  (:meth:`rig.timebase.ClockEstimator.envelope_error_ns`: how high the per-bin lowest pairs sit
+  above the fitted lower envelope — on a clean link tens of µs, on a starved reader the seconds its
+  backlog waited) plus the envelope error of the host → GPS map it is composed with; for a stream
+  stamped only by the host it is the host arrival lag itself (p95) plus that map's error; for a
+  DAQ aligned by sync pulses it is the alignment's RMS residual.
+- ``host_map_error_ms`` (GNSS reference receiver): the envelope error of the host → GPS map. GNSS
+  data carry their own GPS time, so this figure only degrades the receiver's verdict; it is added
+  into the host-timed streams' timing error, where it does harm.
+- ``missing_percent``: stalls (a silence longer than :data:`STALL_FACTOR` × the stream's own median
+  period, and at least :data:`MIN_STALL_S`) and an early end (the stream stops more than
+  :data:`END_TOLERANCE_S` before the last stream of the session) as a share of the session span.
+  Each is a :class:`Gap` with its span.
+- ``backward_max_ms``: the largest step back of ``log_time`` between consecutive messages of one
+  channel in file order (the dataset sorts by time, so results do not suffer; a player does).
+
+Rationale of the limits: the reference smoother (:mod:`rig.analysis.reference`) propagates the
+heading between 20 Hz GNSS epochs (50 ms) with the CAN yaw rate, and its error budget asks for a
+yaw-rate timing error ≪ 10 ms: at 1 ms the β reference is indistinguishable from perfect timing
+(good), above 5 ms — half the budget — it visibly degrades (issue 15 measured 7.8–30.9° RMS with
+seconds of lag), so that is unusable. A stream missing more than 5 % of the session leaves
+manoeuvres unscored or cut; any gap at all is worth a warning.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+import rig.topics as T  # noqa: N812 - topics used as a namespace
+from rig.timebase import ClockEstimator
+from vsccore.errors import AnalysisError, RigError
+
+if TYPE_CHECKING:
+    from rig.dataset import Session
+
+__all__ = [
+    "END_TOLERANCE_S",
+    "MIN_STALL_S",
+    "STALL_FACTOR",
+    "THRESHOLDS",
+    "Figure",
+    "Gap",
+    "StreamQuality",
+    "Threshold",
+    "TimingQualityError",
+    "Verdict",
+    "backward_steps",
+    "check_inputs",
+    "find_gaps",
+    "gate",
+    "info_json",
+    "info_lines",
+    "input_streams",
+    "judge",
+    "session_verdicts",
+    "verdict_lines",
+]
+
+IntArray = npt.NDArray[np.int64]
+
+STALL_FACTOR = 10.0
+"""A silence longer than this many of the stream's own median periods is a stall: periodic sources
+(20 Hz GNSS, 100 Hz CAN, DAQ blocks) do not miss ten periods in a row through scheduling jitter."""
+MIN_STALL_S = 0.25
+"""…and at least this long (a burst-mode topic's median interval can be a fraction of a ms)."""
+END_TOLERANCE_S = 1.0
+"""A stream that stops more than this before the session's last stream is a gap (the devices are
+stopped one after another, which takes well under a second)."""
+
+_NS = 1_000_000_000
+_MS = 1_000_000
+
+
+class Verdict(StrEnum):
+    """How far a stream's timing can be trusted (ordered: good < degraded < unusable)."""
+
+    GOOD = "good"
+    DEGRADED = "degraded"
+    UNUSABLE = "unusable"
+
+    @property
+    def rank(self) -> int:
+        return _RANK[self]
+
+
+_RANK = {Verdict.GOOD: 0, Verdict.DEGRADED: 1, Verdict.UNUSABLE: 2}
+
+
+class TimingQualityError(AnalysisError):
+    """A command refused a stream whose time-base verdict is unusable (exit status 2)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Threshold:
+    """The limits of one figure: above ``degraded_above`` degraded, above ``unusable_above`` unusable."""
+
+    figure: str
+    unit: str
+    degraded_above: float
+    unusable_above: float | None
+    why: str
+
+    def judge(self, value: float) -> Verdict:
+        if not math.isfinite(value):
+            return Verdict.GOOD
+        if self.unusable_above is not None and value > self.unusable_above:
+            return Verdict.UNUSABLE
+        if value > self.degraded_above:
+            return Verdict.DEGRADED
+        return Verdict.GOOD
+
+
+THRESHOLDS: Mapping[str, Threshold] = {
+    "timing_error_ms": Threshold(
+        "timing_error_ms", "ms", 1.0, 5.0,
+        "the reference smoother needs CAN yaw-rate timing ≪ 10 ms (module docstring)"),
+    "host_map_error_ms": Threshold(
+        "host_map_error_ms", "ms", 5.0, None,
+        "GNSS data carry GPS time; the host map only matters to host-timed streams, where it is added"),
+    "missing_percent": Threshold(
+        "missing_percent", "%", 0.0, 5.0,
+        "beyond 5 % of the session missing, manoeuvres go unscored or are cut"),
+    "backward_max_ms": Threshold(
+        "backward_max_ms", "ms", 0.0, None,
+        "results sort by time; a player of the file sees time run back"),
+}
+"""Every limit of the verdicts, in one place (see the module docstring for the rationale)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Figure:
+    """One judged figure of a stream."""
+
+    name: str
+    value: float
+    verdict: Verdict
+    fix: str
+
+    @property
+    def threshold(self) -> Threshold:
+        return THRESHOLDS[self.name]
+
+    def text(self) -> str:
+        th = self.threshold
+        lim = f"degraded > {th.degraded_above:g}"
+        if th.unusable_above is not None:
+            lim += f", unusable > {th.unusable_above:g}"
+        label = self.name.removesuffix("_ms").removesuffix("_percent").replace("_", " ")
+        return f"{label} {self.value:.3g} {th.unit} ({lim} {th.unit})"
+
+    def to_json(self) -> dict[str, Any]:
+        th = self.threshold
+        return {"value": self.value if math.isfinite(self.value) else None, "unit": th.unit,
+                "verdict": self.verdict.value, "degraded_above": th.degraded_above,
+                "unusable_above": th.unusable_above, "fix": self.fix}
+
+
+def judge(name: str, value: float, fix: str) -> Figure:
+    """The :class:`Figure` of ``value`` against :data:`THRESHOLDS` [``name``]."""
+    return Figure(name, float(value), THRESHOLDS[name].judge(float(value)), fix)
+
+
+@dataclass(frozen=True, slots=True)
+class Gap:
+    """A stretch where a stream was silent: a stall inside it, or its early end before the session's."""
+
+    stream: str
+    topic: str
+    kind: str
+    """``stall`` or ``ended_early``."""
+    start_ns: int
+    end_ns: int
+
+    @property
+    def duration_s(self) -> float:
+        return (self.end_ns - self.start_ns) / _NS
+
+    def text(self) -> str:
+        what = "stalled" if self.kind == "stall" else "ended early"
+        return f"{self.stream} {what}: no {self.topic} for {self.duration_s:.3f} s"
+
+    def to_json(self) -> dict[str, Any]:
+        return {"stream": self.stream, "topic": self.topic, "kind": self.kind, "start_ns": self.start_ns,
+                "end_ns": self.end_ns, "duration_s": self.duration_s}
+
+
+@dataclass(frozen=True, slots=True)
+class StreamQuality:
+    """The verdict of one stream, with its figures and gaps."""
+
+    stream: str
+    figures: tuple[Figure, ...]
+    gaps: tuple[Gap, ...] = ()
+    note: str = ""
+
+    @property
+    def verdict(self) -> Verdict:
+        return max((f.verdict for f in self.figures), key=lambda v: v.rank, default=Verdict.GOOD)
+
+    def bad(self) -> tuple[Figure, ...]:
+        """The figures that made the verdict (worst first)."""
+        worst = self.verdict
+        return tuple(f for f in self.figures if f.verdict is worst) if worst is not Verdict.GOOD else ()
+
+    def message(self) -> str:
+        """One line: ``can:vsc unusable: timing error 240 ms (…); fix: …``."""
+        bad = self.bad()
+        if not bad:
+            return f"{self.stream} {self.verdict.value}"
+        fixes = list(dict.fromkeys(f.fix for f in bad))
+        return f"{self.stream} {self.verdict.value}: {'; '.join(f.text() for f in bad)}; fix: {'; '.join(fixes)}"
+
+    def to_json(self) -> dict[str, Any]:
+        return {"stream": self.stream, "verdict": self.verdict.value, "note": self.note,
+                "figures": {f.name: f.to_json() for f in self.figures},
+                "gaps": [g.to_json() for g in self.gaps]}
+
+
+# ---------------------------------------------------------------------------------------------
+# Figures from times
+# ---------------------------------------------------------------------------------------------
+
+
+def backward_steps(log_ns: npt.ArrayLike) -> tuple[int, float]:
+    """(count, largest step in ms) of ``log_time`` running back between consecutive messages (file order)."""
+    t = np.asarray(log_ns, dtype=np.int64)
+    if t.size < 2:
+        return 0, 0.0
+    d = np.diff(t)
+    back = d < 0
+    return int(np.count_nonzero(back)), float(-d[back].min() / _MS) if back.any() else 0.0
+
+
+def stall_threshold_ns(period_ns: float) -> float:
+    """A silence longer than this is a stall (:data:`STALL_FACTOR`, :data:`MIN_STALL_S`)."""
+    return max(STALL_FACTOR * period_ns, MIN_STALL_S * _NS)
+
+
+def find_gaps(stream: str, topic: str, times_ns: npt.ArrayLike, session_end_ns: int | None) -> list[Gap]:
+    """Stalls inside ``times_ns`` (any order) and an early end before ``session_end_ns``."""
+    t = np.sort(np.asarray(times_ns, dtype=np.int64))
+    if t.size < 2:
+        return []
+    d = np.diff(t)
+    pos = d[d > 0]
+    period = float(np.median(pos)) if pos.size else 0.0
+    thr = stall_threshold_ns(period)
+    out = [Gap(stream, topic, "stall", int(t[i]), int(t[i + 1])) for i in np.flatnonzero(d > thr).tolist()]
+    if session_end_ns is not None and session_end_ns - int(t[-1]) > max(thr, END_TOLERANCE_S * _NS):
+        out.append(Gap(stream, topic, "ended_early", int(t[-1]), int(session_end_ns)))
+    return out
+
+
+def _missing_percent(gaps: Sequence[Gap], span_ns: int) -> float:
+    if span_ns <= 0:
+        return 0.0
+    return 100.0 * sum(g.end_ns - g.start_ns for g in gaps) / span_ns
+
+
+def _envelope(name: str, device_ns: IntArray, host_ns: IntArray) -> ClockEstimator | None:
+    if device_ns.size < 2:
+        return None
+    order = np.argsort(device_ns, kind="stable")
+    est = ClockEstimator(name)
+    est.add_many(device_ns[order], host_ns[order])
+    return est
+
+
+def _lag_p95_ns(est: ClockEstimator, device_ns: IntArray, host_ns: IntArray) -> float:
+    return float(np.percentile(host_ns - est.mapping()(device_ns), 95)) if device_ns.size else math.nan
+
+
+# ---------------------------------------------------------------------------------------------
+# Verdicts of a recorded session
+# ---------------------------------------------------------------------------------------------
+
+
+_CACHE: weakref.WeakKeyDictionary[Any, dict[str, StreamQuality]] = weakref.WeakKeyDictionary()
+
+
+def _speed_fix(simulated: bool) -> str:
+    return ("record at --speed 2 (or lower): the simulated devices and readers were starved of CPU"
+            if simulated else "record on a less loaded host (close other programs, give the recorder a core)")
+
+
+@dataclass(slots=True)
+class _Stream:
+    name: str
+    topics: list[str] = field(default_factory=list)
+    times: IntArray | None = None
+    """The stream's main series on the common time base (for gaps)."""
+    main_topic: str = ""
+
+
+def session_verdicts(ds: Session) -> dict[str, StreamQuality]:
+    """Every stream's time-base verdict, from what the session file holds (cached per session).
+
+    Streams: ``gnss:<receiver>`` (decoded logs), ``can:<bus>`` (frames and roles) and ``daq:<device>``
+    (sample blocks and the optical channels). Raises nothing for a stream it cannot judge: such a
+    stream gets no figure and a note.
+    """
+    cached = _CACHE.get(ds)
+    if cached is not None:
+        return cached
+    simulated = bool(ds.config.get("simulation"))
+    speed_fix = _speed_fix(simulated)
+    streams: dict[str, _Stream] = {}
+    counts = ds.topic_counts
+    for rx in ds.receivers():
+        s = streams[f"gnss:{rx}"] = _Stream(f"gnss:{rx}")
+        s.topics = [t for t in (T.gnss_bestpos(rx), T.gnss_bestvel(rx), T.gnss_time(rx), T.gnss_heading(rx),
+                                T.gnss_fix(rx)) if t in counts]
+        s.main_topic = T.gnss_bestpos(rx)
+        if s.main_topic in counts:
+            s.times = np.asarray(ds.gnss(rx).bestpos.time_ns, dtype=np.int64)
+    notes: dict[str, str] = {}
+    extra: dict[str, list[Figure]] = {}
+    # host → GPS map (the reference receiver's envelope): its error goes into every host-timed stream
+    host_err_ms = math.nan
+    ref = ds.host_clock
+    if ref is not None:
+        e = ref.envelope_error_ns()
+        host_err_ms = e / _MS if e is not None else math.nan
+        rx = ref.name.removeprefix("gnss:")
+        if f"gnss:{rx}" in streams:
+            extra.setdefault(f"gnss:{rx}", []).append(judge("host_map_error_ms", host_err_ms, speed_fix))
+    host_add = 0.0 if math.isnan(host_err_ms) else host_err_ms
+    for bus in ds.can_buses():
+        name = f"can:{bus}"
+        s = streams[name] = _Stream(name)
+        s.topics = [t for t in (T.can_frames(bus), T.can_roles(bus)) if t in counts]
+        s.main_topic = T.can_frames(bus)
+        try:
+            frames = ds.can_frames(bus)
+        except Exception as exc:  # an unreadable stream is judged by the command that reads it
+            notes[name] = f"not judged: {exc}"
+            continue
+        s.times = np.asarray(frames.time_ns, dtype=np.int64)
+        dev = frames.records["device_ts_ns"].astype(np.int64)
+        host = frames.records["host_ts_ns"].astype(np.int64)
+        if frames.time_source == "interface":
+            est = _envelope(name, dev, host)
+            env = est.envelope_error_ns() if est is not None else None
+            err = (env / _MS if env is not None else math.nan) + host_add
+            notes[name] = "interface stamps"
+            if est is not None:
+                notes[name] += f", arrival lag p95 {_lag_p95_ns(est, dev, host) / _MS:.3g} ms"
+            extra.setdefault(name, []).append(judge("timing_error_ms", err, speed_fix))
+        else:
+            lag = _host_arrival_lag_ms(frames.records)
+            notes[name] = "host stamps only (no interface clock)"
+            extra.setdefault(name, []).append(
+                judge("timing_error_ms", lag + host_add,
+                      "a CAN interface with hardware stamps (PCAN, Kvaser, Vector, SocketCAN); " + speed_fix))
+    tb = ds.timebase_records()
+    for dev_name in ds.daq_devices():
+        name = f"daq:{dev_name}"
+        s = streams[name] = _Stream(name)
+        s.main_topic = T.daq_samples(dev_name)
+        s.topics = [s.main_topic, *(t for t in counts if t.startswith("/optical/"))]
+        s.times = ds.message_times(s.main_topic)[0]
+        rms = _last_sync_rms_ns(tb, dev_name)
+        if rms is not None:
+            notes[name] = "sync-pulse aligned"
+            extra.setdefault(name, []).append(judge("timing_error_ms", rms / _MS,
+                                                    "check the sync switch wiring to the DAQ and the event input"))
+        else:
+            notes[name] = "no live sync-pulse record: timed by the analysis' own alignment"
+    # gaps: against the last stream's end
+    ends = [int(s.times.max()) for s in streams.values() if s.times is not None and s.times.size]
+    starts = [int(s.times.min()) for s in streams.values() if s.times is not None and s.times.size]
+    session_end = max(ends) if ends else None
+    span = (max(ends) - min(starts)) if ends else 0
+    out: dict[str, StreamQuality] = {}
+    for name, s in streams.items():
+        figs = list(extra.get(name, []))
+        gaps: list[Gap] = []
+        if s.times is not None and s.times.size:
+            gaps = find_gaps(name, s.main_topic, s.times, session_end)
+            fix = speed_fix if not name.startswith("can:") else speed_fix + "; check the CAN reader kept up"
+            figs.append(judge("missing_percent", _missing_percent(gaps, span), fix))
+        back = 0.0
+        n_back = 0
+        for topic in s.topics:
+            n, mx = backward_steps(ds.message_times(topic)[0])
+            n_back += n
+            back = max(back, mx)
+        figs.append(judge("backward_max_ms", back, "record with this version: log_time is monotonic per channel"))
+        note = notes.get(name, "")
+        if n_back:
+            note = (note + "; " if note else "") + f"{n_back} backward log_time step(s)"
+        out[name] = StreamQuality(name, tuple(figs), tuple(gaps), note)
+    _CACHE[ds] = out
+    return out
+
+
+def _host_arrival_lag_ms(records: npt.NDArray[Any]) -> float:
+    """p95 arrival lag of host-stamped frames, from the most frequent identifier's periodicity.
+
+    Frame ``k`` of a periodic message is sent at ``t0 + k·P``; the lower envelope of (k·P, host time)
+    is the on-time arrival, and each frame's height above it is how late it was stamped.
+    """
+    ids = records["can_id"].astype(np.int64)
+    host = records["host_ts_ns"].astype(np.int64)
+    if ids.size < 4:
+        return math.nan
+    vals, cnt = np.unique(ids, return_counts=True)
+    sel = np.flatnonzero(ids == vals[int(np.argmax(cnt))])
+    h = np.sort(host[sel])
+    if h.size < 4:
+        return math.nan
+    d = np.diff(h)
+    period = float(np.median(d[d > 0])) if np.any(d > 0) else 0.0
+    if period <= 0:
+        return math.nan
+    k = (h[0] + np.round(np.arange(h.size) * period)).astype(np.int64)
+    est = _envelope("can:host", k, h)
+    return _lag_p95_ns(est, k, h) / _MS if est is not None else math.nan
+
+
+def _last_sync_rms_ns(tb: Any, device: str) -> float | None:
+    if not len(tb) or "clock" not in tb or "method" not in tb or "rms_ns" not in tb:
+        return None
+    clocks, methods, rms = tb["clock"], tb["method"], tb["rms_ns"]
+    for i in range(len(tb) - 1, -1, -1):
+        if str(clocks[i]) == device and str(methods[i]) == "sync_pulse":
+            v = rms[i]
+            try:
+                f = float(v)
+            except (TypeError, ValueError):
+                return None
+            return f if math.isfinite(f) else None
+    return None
+
+
+# ---------------------------------------------------------------------------------------------
+# Gates
+# ---------------------------------------------------------------------------------------------
+
+
+def gate(verdicts: Mapping[str, StreamQuality], streams: Iterable[str], *, what: str) -> tuple[str, ...]:
+    """Check the streams a result uses: the warnings of degraded ones; unusable ones raise.
+
+    ``streams``: stream names (``gnss:rover_a``, ``can:vsc``, ``daq:daq1``); names the session has no
+    verdict for are skipped (the command itself reports a missing stream).
+
+    Raises:
+        TimingQualityError: a stream is unusable; the message names the stream, the figure and the fix.
+    """
+    wanted = list(dict.fromkeys(streams))
+    unusable = [verdicts[s] for s in wanted if s in verdicts and verdicts[s].verdict is Verdict.UNUSABLE]
+    if unusable:
+        raise TimingQualityError(f"{what}: refused, time base unusable — "
+                                 + " | ".join(q.message() for q in unusable))
+    return tuple(f"TIMING DEGRADED — {verdicts[s].message()}" for s in wanted
+                 if s in verdicts and verdicts[s].verdict is Verdict.DEGRADED)
+
+
+def input_streams(inputs: Any, *, gnss: bool = True, can: Iterable[str] | None = None,
+                  optical: bool = True) -> list[str]:
+    """The stream names a result computed from :class:`rig.sessiondata.SessionInputs` uses.
+
+    ``gnss``: both rovers; ``can``: the roles used (None: every loaded role); ``optical``: the DAQ
+    devices when optical series were loaded from them.
+    """
+    out: list[str] = []
+    g = inputs.gnss
+    if gnss and g is not None:
+        out += [f"gnss:{g.a.receiver}", f"gnss:{g.b.receiver}"]
+    roles = inputs.can if can is None else {r: inputs.can[r] for r in can if r in inputs.can}
+    out += [str(sig.source) for sig in roles.values() if str(sig.source).startswith("can:")]
+    if optical and inputs.optical:
+        out += [f"daq:{d}" for d in inputs.session.daq_devices()]
+    return list(dict.fromkeys(out))
+
+
+def check_inputs(inputs: Any, *, what: str, gnss: bool = True, can: Iterable[str] | None = None,
+                 optical: bool = True) -> tuple[tuple[str, ...], dict[str, StreamQuality]]:
+    """:func:`gate` the streams of ``inputs`` a result uses: (warnings, the verdicts of those streams)."""
+    verdicts = session_verdicts(inputs.session)
+    used = input_streams(inputs, gnss=gnss, can=can, optical=optical)
+    warnings = gate(verdicts, used, what=what)
+    return warnings, {s: verdicts[s] for s in used if s in verdicts}
+
+
+def _load_verdicts(path: Path | str) -> tuple[dict[str, StreamQuality], str | None]:
+    from rig.dataset import load_session
+
+    try:
+        ds = load_session(path)
+        return session_verdicts(ds), None
+    except (RigError, OSError) as exc:
+        return {}, f"not judged: {exc}"
+
+
+def info_lines(path: Path | str) -> list[str]:
+    """The verdict block of ``rig info`` for the session at ``path`` (never raises for a bad session)."""
+    verdicts, problem = _load_verdicts(path)
+    if problem is not None:
+        return [problem]
+    return verdict_lines(verdicts) or ["(no GNSS, CAN or DAQ stream to judge)"]
+
+
+def info_json(path: Path | str) -> dict[str, Any]:
+    """The verdicts of the session at ``path`` as JSON (``rig info --json``: ``timebase.verdicts``)."""
+    verdicts, problem = _load_verdicts(path)
+    return {"problem": problem, "streams": {k: q.to_json() for k, q in sorted(verdicts.items())}}
+
+
+def verdict_lines(verdicts: Mapping[str, StreamQuality]) -> list[str]:
+    """Human-readable lines, one per stream (``rig info``)."""
+    lines = []
+    for name in sorted(verdicts):
+        q = verdicts[name]
+        figs = ", ".join(f"{f.name} {f.value:.3g}" for f in q.figures if math.isfinite(f.value))
+        line = f"{name:<16} {q.verdict.value.upper():<9} {figs}"
+        if q.note:
+            line += f"  [{q.note}]"
+        lines.append(line)
+        for g in q.gaps:
+            lines.append(f"  gap: {g.text()}")
+        if q.verdict is not Verdict.GOOD:
+            lines.append(f"  {q.message()}")
+    return lines
