@@ -4,7 +4,8 @@
   with ``Ntrip-Version: Ntrip/2.0`` and, when a position is known, ``Ntrip-GGA``).
 - :func:`parse_response_head` reads a caster's answer: ``ICY 200 OK`` (v1 data),
   ``HTTP/1.x 200`` with ``gnss/data`` (v2 data, maybe chunked), ``SOURCETABLE 200 OK`` or
-  ``gnss/sourcetable`` (the mountpoint is unknown), ``401`` (credentials refused).
+  ``gnss/sourcetable`` (the mountpoint is unknown), ``401``/``403`` (credentials refused; decided
+  at the status line, which may be all a caster sends).
 - :class:`ChunkedDecoder` undoes HTTP/1.1 chunked transfer coding incrementally.
 - :func:`build_gga` makes the NMEA GGA sentence a client uploads to a network (VRS) caster,
   with pynmea2.
@@ -72,6 +73,7 @@ class ResponseKind(Enum):
     DATA = "data"
     SOURCETABLE = "sourcetable"
     UNAUTHORIZED = "unauthorized"
+    FORBIDDEN = "forbidden"
     NOT_FOUND = "not_found"
     ERROR = "error"
 
@@ -93,11 +95,14 @@ class NtripResponse:
         return "chunked" in self.headers.get("transfer-encoding", "").lower()
 
 
-def parse_response_head(buf: bytes) -> NtripResponse | None:
+def parse_response_head(buf: bytes, *, eof: bool = False) -> NtripResponse | None:
     """Parse a caster's response head; None while more bytes are needed.
 
-    ``ICY 200 OK`` is complete at its line end (an empty line after it, if any, is skipped);
-    an HTTP answer at the empty line that ends its headers.
+    ``ICY 200 OK`` is complete at its line end (an empty line after it, if any, is skipped); an
+    HTTP answer other than 200 is complete at its status line: RTKLIB's ``str2str`` answers a
+    wrong password with the bare line ``HTTP/1.0 401 Unauthorized`` and closes, so nothing more
+    may come (headers already there are read). A 200 answer and ``SOURCETABLE 200 OK`` are
+    complete at the empty line that ends their headers, or at ``eof`` (the caster closed).
 
     Raises:
         DecodeError: the bytes are not an NTRIP/HTTP response.
@@ -106,7 +111,9 @@ def parse_response_head(buf: bytes) -> NtripResponse | None:
     if eol < 0:
         if len(buf) > MAX_HEAD:
             raise DecodeError(f"NTRIP response: no status line in the first {MAX_HEAD} bytes")
-        return None
+        if not (eof and buf.strip()):
+            return None
+        eol = len(buf)
     status_line = buf[:eol].rstrip(b"\r").decode("latin-1")
     upper = status_line.upper()
     if upper.startswith("ICY 200"):
@@ -115,27 +122,32 @@ def parse_response_head(buf: bytes) -> NtripResponse | None:
             start += 2
         return NtripResponse(ResponseKind.DATA, status_line, 200, 1, {}, start)
     if upper.startswith("SOURCETABLE 200"):
-        head_end = _head_end(buf)
+        head_end = _head_end(buf) or (len(buf) if eof else None)
         if head_end is None:
             return None
         return NtripResponse(ResponseKind.SOURCETABLE, status_line, 200, 1, _headers(buf, eol, head_end), head_end)
     if not upper.startswith("HTTP/"):
         raise DecodeError(f"NTRIP response: unexpected status line {status_line[:80]!r}")
-    head_end = _head_end(buf)
-    if head_end is None:
-        if len(buf) > MAX_HEAD:
-            raise DecodeError(f"NTRIP response: head longer than {MAX_HEAD} bytes")
-        return None
     parts = status_line.split(None, 2)
     try:
         status = int(parts[1])
     except (IndexError, ValueError):
         raise DecodeError(f"NTRIP response: bad status line {status_line[:80]!r}") from None
+    head_end = _head_end(buf)
+    if head_end is None:
+        if status != 200 or eof:
+            head_end = len(buf)  # the status decides; the headers may never come
+        elif len(buf) > MAX_HEAD:
+            raise DecodeError(f"NTRIP response: head longer than {MAX_HEAD} bytes")
+        else:
+            return None
     headers = _headers(buf, eol, head_end)
     version = 2 if headers.get("ntrip-version", "").lower().startswith("ntrip/2") else 1
     content_type = headers.get("content-type", "").lower()
     if status == 401:
         kind = ResponseKind.UNAUTHORIZED
+    elif status == 403:
+        kind = ResponseKind.FORBIDDEN
     elif status == 404:
         kind = ResponseKind.NOT_FOUND
     elif status == 200 and "sourcetable" in content_type:

@@ -279,6 +279,11 @@ class Relay:
                 self._state = RelayState.STOPPED
         self._done.set()
 
+    def drain(self, timeout_s: float) -> bool:
+        """Wait until every sink has written (or dropped) what it holds; True if they did in time."""
+        deadline = time.monotonic() + timeout_s
+        return all(sink.drain(max(0.0, deadline - time.monotonic())) for sink in self.sinks)
+
     def wait(self, timeout_s: float | None = None) -> bool:
         """Wait until the reader ends by itself (a file source ended, or a fatal error); True if it did."""
         return self._done.wait(timeout_s)
@@ -431,7 +436,6 @@ class Relay:
         """Read and forward until stopped (False) or the source ends (True)."""
         source = self.source
         framer = self._framer
-        sinks = self.sinks
         tap = self._tap
         on_frame = self._on_frame
         rates = self._rates
@@ -460,13 +464,21 @@ class Relay:
                 if frames:
                     self._last_frame_ns = t_ns
             for frame in frames:
-                raw = frame.raw
-                for sink in sinks:
-                    sink.offer(raw, mono)
+                self._fan_out(frame.raw, mono)
                 if on_frame is not None:
                     self._call(on_frame, t_ns, frame)
             self._tick()
         return False
+
+    def _fan_out(self, raw: bytes, mono_ns: int) -> None:
+        """A finite source waits for room in every sink (loses nothing); a live one never waits
+        (each sink drops its oldest frames and counts them)."""
+        if self.source.finite:
+            for sink in self.sinks:
+                sink.put(raw, self._stop)
+        else:
+            for sink in self.sinks:
+                sink.offer(raw, mono_ns)
 
     def _forward(self, frames: list[CorrectionFrame], t_ns: int) -> None:
         mono = time.monotonic_ns()
@@ -476,8 +488,7 @@ class Relay:
             if frames:
                 self._last_frame_ns = t_ns
         for frame in frames:
-            for sink in self.sinks:
-                sink.offer(frame.raw, mono)
+            self._fan_out(frame.raw, mono)
             if self._on_frame is not None:
                 self._call(self._on_frame, t_ns, frame)
 

@@ -47,6 +47,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 WRITE_WAIT_S = 0.1  # longest a worker waits in one write, so stop() is prompt
+_NEVER_STALE = -1  # queue time of a frame from a finite source (never dropped as stale)
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,10 +83,12 @@ class SinkStats:
     """Frames being written when the port failed."""
     reconnects: int
     last_error: str | None
+    dropped_at_stop: int = 0
+    """Frames still queued when the sink was stopped (never written)."""
 
     @property
     def dropped_total(self) -> int:
-        return self.dropped + self.dropped_stale + self.dropped_disconnect
+        return self.dropped + self.dropped_stale + self.dropped_disconnect + self.dropped_at_stop
 
 
 class Sink(ABC):
@@ -126,6 +129,7 @@ class Sink(ABC):
         self._dropped = 0
         self._dropped_stale = 0
         self._dropped_disconnect = 0
+        self._dropped_at_stop = 0
         self._reconnects = 0
         self._opened_once = False
         self._last_error: str | None = None
@@ -168,7 +172,21 @@ class Sink(ABC):
                 self._dropped += 1
             self._queue.append(item)
             self._idle.clear()
-            self._cond.notify()
+            self._cond.notify_all()
+
+    def put(self, frame: bytes, stop: threading.Event | None = None) -> bool:
+        """Queue a whole frame, waiting while the queue is full (backpressure for a finite source,
+        which must lose nothing). The frame is never dropped as stale. False (frame not queued) if
+        ``stop`` or the sink's own stop is set while waiting."""
+        with self._cond:
+            while len(self._queue) >= self._max:
+                if self._stop.is_set() or (stop is not None and stop.is_set()):
+                    return False
+                self._cond.wait(0.1)
+            self._queue.append((_NEVER_STALE, frame))
+            self._idle.clear()
+            self._cond.notify_all()
+        return True
 
     def wait_connected(self, connected: bool = True, timeout_s: float = 5.0) -> bool:
         """Wait until the transport is open (``connected``) or closed; True if it happened in time."""
@@ -214,6 +232,7 @@ class Sink(ABC):
                 self._dropped_disconnect,
                 self._reconnects,
                 self._last_error,
+                self._dropped_at_stop,
             )
 
     # --- worker ---------------------------------------------------------------------------
@@ -231,7 +250,9 @@ class Sink(ABC):
                 self._cond.wait(0.5)
             if not self._queue:
                 return None
-            return self._queue.popleft()
+            item = self._queue.popleft()
+            self._cond.notify_all()  # a producer waiting for room (put)
+            return item
 
     def _run(self) -> None:
         delays = self._backoff.delays()
@@ -256,7 +277,8 @@ class Sink(ABC):
                 if item is None:
                     continue
                 t_ns, frame = item
-                if self._max_age_ns is not None and time.monotonic_ns() - t_ns > self._max_age_ns:
+                stale = self._max_age_ns is not None and time.monotonic_ns() - t_ns > self._max_age_ns
+                if stale and t_ns != _NEVER_STALE:
                     with self._cond:
                         self._dropped_stale += 1
                     continue
@@ -267,6 +289,10 @@ class Sink(ABC):
         finally:
             self._close()
             self._set_connected(False)
+            with self._cond:
+                self._dropped_at_stop += len(self._queue)
+                self._queue.clear()
+                self._cond.notify_all()
             self._idle.set()
 
     def _write_frame(self, frame: bytes) -> bool:

@@ -93,6 +93,10 @@ class EndOfStream(Exception):  # noqa: N818 - a signal, not an error
 class Source(ABC):
     """A byte source for the relay (see the module doc for the contract)."""
 
+    finite = False
+    """True for a source that ends (a capture read as fast as it goes): the relay then waits for
+    the sinks instead of dropping (backpressure); a live source never waits for a sink."""
+
     def __init__(self, name: str) -> None:
         self.name = name
         self._stop = threading.Event()
@@ -313,13 +317,21 @@ class NtripSource(_SocketSource):
             left = deadline - time.monotonic()
             if left <= 0:
                 raise DeviceTimeoutError(f"{self._where}: no answer within {self._head_timeout_s:g} s")
-            buf += self._recv(min(left, 0.2))
+            eof = False
             try:
-                head = parse_response_head(buf)
+                buf += self._recv(min(left, 0.2))
+            except DeviceError:
+                if not buf:
+                    raise
+                eof = True  # e.g. str2str: a bare "HTTP/1.0 401 Unauthorized" line, then close
+            try:
+                head = parse_response_head(buf, eof=eof)
             except DecodeError as exc:
                 raise NtripError(f"{self._where}: {exc}") from None
             if head is not None:
                 return buf, head
+            if eof:
+                raise NtripError(f"{self._where}: the caster closed the connection in its answer's head")
 
     def _read_until_close(self, buf: bytes, stop: threading.Event | None, limit: int = 1 << 20) -> bytes:
         deadline = time.monotonic() + self._head_timeout_s
@@ -382,10 +394,10 @@ class NtripSource(_SocketSource):
             self._maybe_send_gga()
             return
         user = "no user" if e.user is None else f"user {e.user!r}"
-        if head.kind is ResponseKind.UNAUTHORIZED:
+        if head.kind in (ResponseKind.UNAUTHORIZED, ResponseKind.FORBIDDEN):
             self.close()
             raise NtripAuthError(
-                f"{self._where}: credentials refused for {user} ({head.status} Unauthorized); "
+                f"{self._where}: credentials refused for {user} ({head.status_line[:80]!r}); "
                 f"check the user name and the password (in the URL or {DEFAULT_NTRIP_PASSWORD_ENV})"
             )
         if head.kind is ResponseKind.SOURCETABLE:
@@ -440,6 +452,7 @@ class FileSource(Source):
     def __init__(self, endpoint: FileEndpoint, *, clock: Clock | None = None, chunk_size: int = 4096) -> None:
         super().__init__(endpoint.display)
         self.endpoint = endpoint
+        self.finite = endpoint.baud is None  # a paced replay stands in for a live port
         self._clock = clock or SystemClock()
         self._chunk_size = chunk_size
         self._file: IO[bytes] | None = None

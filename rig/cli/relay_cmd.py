@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from vsccore.errors import ConfigError
+from vsccore.errors import ConfigError, DeviceError
 
 if TYPE_CHECKING:
     from drivers.relay import RelayStats
@@ -74,9 +74,25 @@ def summary(s: RelayStats) -> str:
     for x in s.sinks:
         lines.append(
             f"  -> {x.name}: {x.frames_out} frames, {x.bytes_out} bytes, dropped {x.dropped} (queue full) "
-            f"+ {x.dropped_stale} (stale) + {x.dropped_disconnect} (disconnect), reconnects {x.reconnects}"
+            f"+ {x.dropped_stale} (stale) + {x.dropped_disconnect} (disconnect) + {x.dropped_at_stop} (at stop), "
+            f"reconnects {x.reconnects}"
         )
+    if s.skipped_bytes:
+        lines.append(f"  {s.skipped_bytes} bytes outside whole frames (sync search, rejected and truncated frames)")
     return "\n".join(lines)
+
+
+def _outcome(s: RelayStats, *, finite: bool) -> DeviceError | None:
+    """The error a run ends with although the relay did not fail: a source that never connected,
+    or frames of a capture file that did not reach every sink."""
+    if s.source_connects == 0:
+        reason = s.source_error or "no connection before the end of the run"
+        return DeviceError(f"relay source {s.source}: never connected: {reason}")
+    lost = s.dropped_frames
+    if finite and lost:
+        where = ", ".join(f"{x.name} {x.dropped_total}" for x in s.sinks if x.dropped_total)
+        return DeviceError(f"relay source {s.source}: {lost} frames were not delivered ({where})")
+    return None
 
 
 def relay(
@@ -131,8 +147,13 @@ def relay(
             left = None if deadline is None else deadline - time.monotonic()
             if left is not None and left <= 0:
                 break
-            if relay.wait(status_period_s if left is None else min(status_period_s, left)):
-                break
+            wait_s = status_period_s if left is None else min(status_period_s, left)
+            if relay.finished.is_set():
+                # a capture file ended: its frames are all queued; wait until the sinks wrote them
+                if relay.error is not None or not src.finite or relay.drain(wait_s):
+                    break
+            else:
+                relay.wait(wait_s)
             if live is not None:
                 live.update(Text(status_line(relay.stats())), refresh=True)
     except KeyboardInterrupt:
@@ -147,3 +168,9 @@ def relay(
         raise relay.error
     if interrupted:
         err.print("relay: stopped (Ctrl-C)", highlight=False)
+    problem = _outcome(final, finite=src.finite)
+    if problem is not None:
+        raise problem
+    if final.dropped_frames:
+        err.print(f"relay: {final.dropped_frames} frames dropped (see above; a live source never waits for a sink)",
+                  highlight=False)
