@@ -6,10 +6,19 @@ queue. When the queue is full the message is dropped, *counted*, and the loss is
 ``/rig/events`` (count, topics and log-time range) by the writer as soon as the queue has room again.
 Nothing is lost silently.
 
-The queue is a ``collections.deque`` (its ``append``/``popleft`` are atomic in CPython), so the hot
-path takes no lock; the bound is checked before appending, so concurrent producers on one source
-may overshoot it by a few messages. Exact per-source counters assume one producer thread per
-source, which is how the rig uses them (one source per device).
+The queue is a ``collections.deque`` (its ``append``/``popleft`` are atomic in CPython); the bound
+is checked before appending, so concurrent producers on one source may overshoot it by a few
+messages. Exact per-source counters assume one producer thread per source, which is how the rig
+uses them (one source per device).
+
+``log_time`` is monotonic per channel: ``put`` holds the channel's small lock while it compares the
+message's ``log_time`` with the channel's last one and appends, and a message whose time runs back
+is queued at the channel's last time instead — *clamped*, counted per channel
+(:class:`ChannelTiming`), and reported on ``/rig/events`` (one ``timebase`` event per channel and
+second of log time, with the count and the largest step back). The writer keeps the same floor for
+the recorder's own events, which it writes directly. The same pass learns each periodic channel's
+period (median of its recent intervals) and records a silence longer than
+:func:`rig.quality.stall_threshold_ns` of it as a ``gap`` event with its span (a stall).
 """
 
 from __future__ import annotations
@@ -22,8 +31,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from rig.quality import stall_threshold_ns
 from rig.topics import (
     TOPIC_EVENTS,
+    TOPIC_TIMEBASE,
     Event,
     EventKind,
     SchemaSpec,
@@ -35,11 +46,50 @@ from rig.topics import (
 )
 from vsccore.clock import Clock
 
-__all__ = ["Source", "SourceStats"]
+__all__ = ["ChannelTiming", "Source", "SourceStats", "channel_timings"]
 
 log = logging.getLogger(__name__)
 
 _U64 = 2**64 - 1
+_CLAMP_EVENT_EVERY_NS = 1_000_000_000
+"""At most one clamp event per channel and second of log time (the count covers the clamps between)."""
+_PERIOD_SAMPLES = 64
+"""Intervals a channel's period estimate is the median of (re-estimated every that many)."""
+_NOT_PERIODIC_SUFFIXES = ("/markpos", "/marktime")
+"""Event-driven GNSS logs (the sync switch): no period, no stalls."""
+
+
+def _is_periodic(topic: str) -> bool:
+    return topic not in (TOPIC_EVENTS, TOPIC_TIMEBASE) and not topic.endswith(_NOT_PERIODIC_SUFFIXES)
+
+
+@dataclass(frozen=True, slots=True)
+class ChannelTiming:
+    """The log-time record of one channel so far (:func:`channel_timings`)."""
+
+    topic: str
+    source: str
+    """The source that last wrote to it."""
+    messages: int
+    first_log_ns: int | None
+    last_log_ns: int | None
+    period_ns: float | None
+    """Median interval of its recent messages (None: not periodic, or too few messages yet)."""
+    clamped: int
+    """Messages whose ``log_time`` ran back and was clamped to the channel's last one."""
+    clamp_max_ns: int
+    """The largest such step back."""
+    stalls: int
+    """Silences longer than :func:`rig.quality.stall_threshold_ns` of the period (each a gap event)."""
+    stalled_ns: int
+    """Their total length."""
+
+    def late_ns(self, now_log_ns: int) -> int | None:
+        """How long the channel has been silent at ``now_log_ns`` if that is a stall (else None)."""
+        if self.period_ns is None or self.last_log_ns is None:
+            return None
+        late = now_log_ns - self.last_log_ns
+        return late if late > stall_threshold_ns(self.period_ns) else None
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,7 +113,9 @@ class SourceStats:
 class _Channel:
     """A concrete topic: its schema, its MCAP id in the current part, and its sequence counter."""
 
-    __slots__ = ("epoch", "is_json", "mcap_id", "schema", "seq", "spec", "topic")
+    __slots__ = ("clamp_event_ns", "clamp_max", "clamp_reported", "clamped", "epoch", "first_log", "intervals",
+                 "is_json", "last_log", "lock", "mcap_id", "n", "period", "periodic", "schema", "seq", "source",
+                 "spec", "stalled_ns", "stalls", "topic", "written_log")
 
     def __init__(self, topic: str, spec: TopicSpec) -> None:
         self.topic = topic
@@ -75,6 +127,32 @@ class _Channel:
         """Part number in which ``mcap_id`` was registered (-1: not yet)."""
         self.seq = 0
         """Next sequence number; it runs on across parts, so every message has one (topic, sequence)."""
+        self.lock = threading.Lock()
+        self.source = ""
+        self.n = 0
+        self.first_log = -1
+        self.last_log = -1
+        """Largest log time queued on the channel (-1: none yet)."""
+        self.written_log = 0
+        """Largest log time the writer wrote on the channel (its floor for events it writes directly)."""
+        self.clamped = 0
+        self.clamp_max = 0
+        self.clamp_reported = 0
+        self.clamp_event_ns = -1
+        self.periodic = _is_periodic(topic)
+        self.intervals: list[int] = []
+        self.period = 0.0
+        self.stalls = 0
+        self.stalled_ns = 0
+
+    def timing(self) -> ChannelTiming:
+        with self.lock:
+            return ChannelTiming(
+                topic=self.topic, source=self.source, messages=self.n,
+                first_log_ns=self.first_log if self.n else None, last_log_ns=self.last_log if self.n else None,
+                period_ns=self.period if self.periodic and self.period > 0 else None,
+                clamped=self.clamped, clamp_max_ns=self.clamp_max, stalls=self.stalls, stalled_ns=self.stalled_ns,
+            )
 
 
 @dataclass(slots=True)
@@ -197,10 +275,48 @@ class Source:
         if len(q) >= self._maxsize:
             self._count_drop(topic, log_time_ns)
             return False
-        q.append((ch, log_time_ns, publish_time_ns, data))
+        clamp: tuple[int, int, int] | None = None
+        stall: tuple[int, int, float] | None = None
+        with ch.lock:
+            last = ch.last_log
+            if log_time_ns < last:
+                back = last - log_time_ns
+                log_time_ns = last
+                ch.clamped += 1
+                if back > ch.clamp_max:
+                    ch.clamp_max = back
+                due = ch.clamp_event_ns < 0 or last - ch.clamp_event_ns >= _CLAMP_EVENT_EVERY_NS
+                if due and topic != TOPIC_EVENTS:
+                    clamp = (last, ch.clamped - ch.clamp_reported, back)
+                    ch.clamp_reported = ch.clamped
+                    ch.clamp_event_ns = last
+            else:
+                if last >= 0 and ch.periodic:
+                    dt = log_time_ns - last
+                    if ch.period > 0 and dt > stall_threshold_ns(ch.period):
+                        ch.stalls += 1
+                        ch.stalled_ns += dt
+                        stall = (last, log_time_ns, ch.period)
+                    elif dt > 0:
+                        iv = ch.intervals
+                        iv.append(dt)
+                        if len(iv) >= _PERIOD_SAMPLES:
+                            iv.sort()
+                            ch.period = float(iv[len(iv) // 2])
+                            iv.clear()
+                if ch.first_log < 0:
+                    ch.first_log = log_time_ns
+                ch.last_log = log_time_ns
+            ch.n += 1
+            ch.source = self.name
+            q.append((ch, log_time_ns, publish_time_ns, data))
         self._accepted += 1
         if hub.idle:
             hub.wake.set()
+        if clamp is not None:
+            self._report_clamp(topic, *clamp)
+        if stall is not None:
+            self._report_stall(topic, *stall)
         return True
 
     def event(
@@ -256,6 +372,20 @@ class Source:
             return False
         return events.put(TOPIC_EVENTS, t, now, ev.to_json())
 
+    def _report_clamp(self, topic: str, at_ns: int, count: int, back_ns: int) -> None:
+        self._hub_event(Event(
+            EventKind.TIMEBASE, self.name,
+            f"{topic}: {count} message(s) with log_time running back (last {back_ns / 1e6:.3f} ms) written at the "
+            "channel's last log_time", Severity.WARNING, None, None,
+            {"topic": topic, "clamped": count, "step_back_ns": back_ns},
+        ), at_ns)
+
+    def _report_stall(self, topic: str, start_ns: int, end_ns: int, period_ns: float) -> None:
+        self.gap(start_ns, end_ns,
+                 f"{topic} stalled: no message for {(end_ns - start_ns) / 1e9:.3f} s "
+                 f"(period {period_ns / 1e6:.3g} ms)",
+                 topic=topic, kind="stall", period_ns=period_ns)
+
     def _count_drop(self, topic: str, log_time_ns: int) -> None:
         with self._lock:
             w = self._drops
@@ -273,3 +403,8 @@ class Source:
             if w is not None:
                 self._dropped_total += w.count
         return w
+
+
+def channel_timings(hub: _Hub) -> list[ChannelTiming]:
+    """The log-time record of every channel of a recording (topic order)."""
+    return [hub.channels[t].timing() for t in sorted(hub.channels)]

@@ -42,7 +42,7 @@ from mcap.writer import Writer as McapWriter
 import vsccore
 from rig.recorder.reader import part_path
 from rig.recorder.recover import finalize_in_place
-from rig.recorder.sources import Source, SourceStats, _Channel, _DropWindow, _Hub
+from rig.recorder.sources import ChannelTiming, Source, SourceStats, _Channel, _DropWindow, _Hub, channel_timings
 from rig.topics import (
     METADATA_CALIBRATION,
     METADATA_PART_END,
@@ -455,6 +455,10 @@ class Recorder:
         """Counters of every source (the recorder's own event source first)."""
         return [s.stats() for s in self._hub.sources]
 
+    def channel_timings(self) -> list[ChannelTiming]:
+        """The log-time record of every channel: period, clamps, stalls (:mod:`rig.recorder.sources`)."""
+        return channel_timings(self._hub)
+
     @property
     def running(self) -> bool:
         """The writer thread is recording."""
@@ -575,6 +579,9 @@ class Recorder:
                 pop = q.popleft
                 for _ in range(n):
                     ch, log_ns, pub_ns, data = pop()
+                    if log_ns < ch.written_log:  # several producers (events): the writer's order decides
+                        log_ns = ch.written_log
+                    ch.written_log = log_ns
                     if ch.epoch != epoch:
                         self._register(part, ch)
                     add(ch.mcap_id, log_ns, data, pub_ns, ch.seq & 0xFFFFFFFF)
@@ -605,7 +612,8 @@ class Recorder:
         ch = self._hub.channel(TOPIC_EVENTS)
         if ch.epoch != self._epoch:
             self._register(part, ch)
-        log_ns = ev.start_ns if ev.start_ns is not None else self._hub.host_to_log_time(host_ns)
+        log_ns = max(ev.start_ns if ev.start_ns is not None else self._hub.host_to_log_time(host_ns), ch.written_log)
+        ch.written_log = log_ns
         part.writer.add_message(ch.mcap_id, log_ns, encode_json(ev.to_json()), host_ns, ch.seq & 0xFFFFFFFF)
         ch.seq += 1
         part.messages += 1
