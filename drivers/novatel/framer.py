@@ -29,6 +29,15 @@ An abbreviated-ASCII log has no end marker: it is complete when the next byte af
 continuation line is not another continuation line. At the end of a chunk the framer therefore
 waits for the next byte (or :meth:`Framer.finish`; a receiver session may call
 :meth:`Framer.flush` after a read timeout).
+
+The cost is linear in the bytes fed, however they are chunked (a serial port at 460 800 baud
+delivers 1–64 bytes per read). When a scan stops inside an incomplete frame, the parser says what
+could change its verdict: the buffer reaching a length (the rest of a binary or RTCM3 frame, the
+CRC digits of a text frame) and/or a byte from a small set arriving (the ``*`` or line break a text
+frame waits for, a non-hex digit in its CRC field). :meth:`Framer.feed` only appends the bytes and
+returns until then, so a partial frame is rescanned a bounded number of times, not once per chunk;
+an abbreviated log resumes at its last complete line. Frames and counts are the same for any
+chunking, and a frame is returned by the very ``feed`` that completes it.
 """
 
 from __future__ import annotations
@@ -182,7 +191,7 @@ class FramerStats:
 
 # Parser results: (status, end, payload).
 _OK = 0  # payload: Frame; end: frame end
-_NEED = 1  # payload: kind once the sync is complete, else None
+_NEED = 1  # payload: kind once the sync is complete, else None; end: buffer length worth a rescan
 _NOT_FRAME = 2  # skip one byte as garbage
 _CRC_FAIL = 3  # payload: kind; end: end of the candidate
 _TRUNC = 4  # payload: kind; end: where the frame was cut
@@ -204,6 +213,10 @@ _ABBREV_HEADER = re.compile(
     rb" +[0-9A-Fa-f]+ +[0-9A-Fa-f]+ +\d+ *\r?$"
 )
 _NMEA_ADDRESS = re.compile(rb"\$[A-Z][A-Z0-9]{1,9},")
+# Bytes that end the wait of an incomplete frame before it reaches its expected length.
+_WAKE_TEXT_END = re.compile(rb"[*\r\n]").search  # a text frame waiting for its '*' (or a line break)
+_WAKE_LINE_END = re.compile(rb"\n").search  # an abbreviated-ASCII line waiting for its end
+_WAKE_NOT_HEX = re.compile(rb"[^0-9A-Fa-f]").search  # a CRC field that would stop being hex digits
 
 
 def _rtcm_number_plausible(number: int) -> bool:
@@ -236,8 +249,15 @@ class Framer:
         self._decode_logs = decode_logs
         self._decode_nmea = decode_nmea
         self._decode_rtcm = decode_rtcm
-        self.stats = FramerStats()
-        self._buf = b""
+        self._stats = FramerStats()
+        self._buf = b""  # scanned bytes still pending (the start of an incomplete frame)
+        self._more: list[bytes] = []  # chunks fed since the last scan, not yet joined to _buf
+        self._held = 0  # len(_buf) + the lengths in _more
+        # The last scan stopped inside an incomplete frame at _buf[0]; rescan when _held reaches
+        # _wake_len, or when a fed chunk holds a byte that _wake finds (see the module docstring).
+        self._wake_len = 1
+        self._wake: Callable[[bytes | bytearray | memoryview], Any] | None = None
+        self._abbrev_resume: tuple[int, int, int] | None = None  # stream offsets (start, next line, end)
         self._base = 0  # stream offset of self._buf[0]
         self._span_end = 0  # stream offset where the current rejected span ends
         self._span_reason = SkipReason.GARBAGE
@@ -255,12 +275,23 @@ class Framer:
 
     # --- public API ---------------------------------------------------------------------
 
+    @property
+    def stats(self) -> FramerStats:
+        """Running counts (the live object: take :meth:`FramerStats.copy` for a snapshot)."""
+        stats = self._stats
+        stats.bytes_in = self._base + self._held  # kept here, not per feed: feed(1 byte) stays cheap
+        return stats
+
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         """Add bytes; return the frames completed by them (in stream order)."""
         if data:
-            chunk = bytes(data)
-            self.stats.bytes_in += len(chunk)
-            self._buf = self._buf + chunk if self._buf else chunk
+            self._more.append(bytes(data))
+            self._held = held = self._held + len(data)
+            if held < self._wake_len:
+                # Nothing can complete, or be rejected, before the wake condition: keep the bytes only.
+                wake = self._wake
+                if wake is None or wake(data) is None:
+                    return []
         return self._scan(final=False)
 
     def flush(self) -> list[Frame]:
@@ -279,22 +310,30 @@ class Framer:
         """End of stream: complete what can be completed, count the rest as truncated or garbage."""
         frames = self._scan(final=True)
         self._buf = b""
+        self._held = 0
         return frames
 
     @property
     def pending_bytes(self) -> int:
         """Bytes held while waiting for the rest of a frame."""
-        return len(self._buf)
+        return self._held
 
     # --- scanning -----------------------------------------------------------------------
 
     def _scan(self, final: bool) -> list[Frame]:
-        buf = self._buf
+        if self._more:
+            more = self._more[0] if len(self._more) == 1 else b"".join(self._more)
+            self._more = []
+            buf = self._buf + more if self._buf else more
+        else:
+            buf = self._buf
         n = len(buf)
+        self._wake_len = 1
+        self._wake = None
         pos = 0
         out: list[Frame] = []
         append = out.append
-        stats = self.stats
+        stats = self._stats
         search = _SYNC.search
         parsers = self._parsers
         fast_binary = self._decode_logs
@@ -355,6 +394,7 @@ class Framer:
             elif status == _NEED:
                 if not final:
                     pos = start
+                    self._wake_len = end - start  # relative to the new buffer start; _wake set by the parser
                     break
                 if payload is not None:
                     # The stream ended inside a frame: count it once, then look inside it.
@@ -390,6 +430,7 @@ class Framer:
         stats.line_end_bytes += line_ends
         self._base += pos
         self._buf = buf[pos:] if pos < n else b""
+        self._held = n - pos
         return out
 
     def _in_span(self, start: int, reason: SkipReason) -> bool:
@@ -408,7 +449,7 @@ class Framer:
         """Count buf[start:end] as skipped: by the rejected span's reason, else garbage/line ends."""
         a = self._base + start
         b = self._base + end
-        skipped = self.stats.bytes_skipped
+        skipped = self._stats.bytes_skipped
         if a < self._span_end:
             cut = min(b, self._span_end)
             skipped[self._span_reason] += cut - a
@@ -416,7 +457,7 @@ class Framer:
                 return
             start = cut - self._base
         line_ends = buf.count(b"\n", start, end) + buf.count(b"\r", start, end)
-        self.stats.line_end_bytes += line_ends
+        self._stats.line_end_bytes += line_ends
         skipped[SkipReason.GARBAGE] += end - start - line_ends
 
     # --- parsers: (buf, start, n, final) -> (status, end, payload) ----------------------
@@ -426,14 +467,14 @@ class Framer:
         if avail < 3:
             if avail == 2 and buf[start + 1] != 0x44:
                 return _NOT_FRAME, 0, None
-            return _NEED, 0, None
+            return _NEED, start + avail + 1, None
         b2 = buf[start + 2]
         if buf[start + 1] != 0x44 or (b2 != 0x12 and b2 != 0x13):
             return _NOT_FRAME, 0, None
         if b2 == 0x12:
             kind = FrameKind.NOVATEL_BINARY
             if avail < 10:
-                return _NEED, 0, kind
+                return _NEED, start + 10, kind
             hdr_len = buf[start + 3]
             if hdr_len < 28:
                 return _NOT_FRAME, 0, None
@@ -441,13 +482,13 @@ class Framer:
         else:
             kind = FrameKind.NOVATEL_SHORT_BINARY
             if avail < 4:
-                return _NEED, 0, kind
+                return _NEED, start + 4, kind
             total = 16 + buf[start + 3]
         if total > self.max_frame_len:
             return _OVERSIZE, 0, kind
         end = start + total
         if end > n:
-            return _NEED, 0, kind
+            return _NEED, end, kind
         raw = buf[start:end]
         if zlib.crc32(raw, 0xFFFFFFFF) != 0xFFFFFFFF:
             return _CRC_FAIL, end, kind
@@ -458,7 +499,7 @@ class Framer:
 
     def _parse_ascii(self, buf: bytes, start: int, n: int, final: bool) -> _Result:
         if n - start < 2:
-            return _NEED, 0, None
+            return _NEED, start + 2, None
         if not 0x41 <= buf[start + 1] <= 0x5A:  # a log name starts with an upper-case letter
             return _NOT_FRAME, 0, None
         kind = FrameKind.NOVATEL_ASCII if buf[start] == 0x23 else FrameKind.NOVATEL_SHORT_ASCII
@@ -470,7 +511,8 @@ class Framer:
                 return self._text_cut(buf, start, brk.start(), kind)
             if limit - start >= self.max_frame_len:
                 return _OVERSIZE, 0, kind
-            return _NEED, 0, kind
+            self._wake = _WAKE_TEXT_END
+            return _NEED, start + self.max_frame_len, kind
         nl = buf.find(b"\n", start + 2, star)
         cr = buf.find(b"\r", start + 2, star)
         if nl >= 0 or cr >= 0:
@@ -479,7 +521,8 @@ class Framer:
         if end > n:
             if n > star + 1 and not _is_hex_prefix(buf, star + 1, n):
                 return self._text_cut(buf, start, star + 1, kind)
-            return _NEED, 0, kind
+            self._wake = _WAKE_NOT_HEX
+            return _NEED, end, kind
         crc_text = buf[star + 1 : end]
         if crc_text.strip(_HEX_DIGITS):  # something other than 8 hex digits
             return self._text_cut(buf, start, star + 1, kind)
@@ -513,37 +556,49 @@ class Framer:
 
     def _parse_abbreviated(self, buf: bytes, start: int, n: int, final: bool) -> _Result:
         limit = min(n, start + self.max_frame_len)
-        nl = buf.find(b"\n", start + 1, limit)
-        if nl < 0:
-            if limit - start >= self.max_frame_len:
-                return _NOT_FRAME, 0, None
-            if not final:
-                return _NEED, 0, None
-            line_end = n
-        else:
-            line_end = nl
-        line = buf[start:line_end].rstrip(b"\r")
-        if line == b"<OK":
-            return _OK, start + len(line), Frame(FrameKind.RESPONSE, line, Response(True, "OK"))
-        if line.startswith(b"<ERROR:"):
-            return _OK, start + len(line), Frame(FrameKind.RESPONSE, line, Response(False, line[7:].decode("latin-1")))
-        if _ABBREV_HEADER.match(line) is None:
-            return _NOT_FRAME, 0, None
         kind = FrameKind.NOVATEL_ABBREV
-        last_end = start + len(line)
-        p = line_end + 1
+        resume = self._abbrev_resume
+        self._abbrev_resume = None
+        base = self._base
+        if resume is not None and resume[0] == base + start:
+            # The header and the complete lines were checked by the scan that stopped here.
+            p = resume[1] - base
+            last_end = resume[2] - base
+        else:
+            nl = buf.find(b"\n", start + 1, limit)
+            if nl < 0:
+                if limit - start >= self.max_frame_len:
+                    return _NOT_FRAME, 0, None
+                if not final:
+                    self._wake = _WAKE_LINE_END
+                    return _NEED, start + self.max_frame_len, None
+                line_end = n
+            else:
+                line_end = nl
+            line = buf[start:line_end].rstrip(b"\r")
+            if line == b"<OK":
+                return _OK, start + len(line), Frame(FrameKind.RESPONSE, line, Response(True, "OK"))
+            if line.startswith(b"<ERROR:"):
+                message = line[7:].decode("latin-1")
+                return _OK, start + len(line), Frame(FrameKind.RESPONSE, line, Response(False, message))
+            if _ABBREV_HEADER.match(line) is None:
+                return _NOT_FRAME, 0, None
+            last_end = start + len(line)
+            p = line_end + 1
         complete_at_end = final or self._flush
         while True:
             if p >= n:
                 if complete_at_end:
                     break
-                return _NEED, 0, kind
+                self._abbrev_resume = (base + start, base + p, base + last_end)
+                return _NEED, p + 1, kind
             if buf[p] != 0x3C:  # not '<': the log is complete
                 break
             if p + 1 >= n:
                 if complete_at_end:
                     break
-                return _NEED, 0, kind
+                self._abbrev_resume = (base + start, base + p, base + last_end)
+                return _NEED, p + 2, kind
             if buf[p + 1] != 0x20 and buf[p + 1] != 0x09:  # '<' not followed by blank: next frame
                 break
             q = buf.find(b"\n", p, limit)
@@ -551,7 +606,9 @@ class Framer:
                 if limit - start >= self.max_frame_len:
                     return _OVERSIZE, 0, kind
                 if not final:
-                    return _NEED, 0, kind
+                    self._abbrev_resume = (base + start, base + p, base + last_end)
+                    self._wake = _WAKE_LINE_END
+                    return _NEED, start + self.max_frame_len, kind
                 q = n
             last_end = q - 1 if q > p and buf[q - 1] == 0x0D else q
             p = q + 1
@@ -570,12 +627,12 @@ class Framer:
             end = m.end()
             return _OK, end, Frame(FrameKind.PROMPT, buf[start:end], Prompt(m.group(1).decode("ascii")))
         if not final and n - start < 18 and _PROMPT_PARTIAL.fullmatch(buf, start, n) is not None:
-            return _NEED, 0, None
+            return _NEED, n + 1, None
         return _NOT_FRAME, 0, None
 
     def _parse_nmea(self, buf: bytes, start: int, n: int, final: bool) -> _Result:
         if n - start < 2:
-            return _NEED, 0, None
+            return _NEED, start + 2, None
         if not 0x41 <= buf[start + 1] <= 0x5A:
             return _NOT_FRAME, 0, None
         kind = FrameKind.NMEA
@@ -587,7 +644,8 @@ class Framer:
                 return self._nmea_cut(buf, start, brk.start())
             if limit - start >= min(MAX_NMEA_LEN, self.max_frame_len):
                 return _NOT_FRAME, 0, None
-            return _NEED, 0, kind
+            self._wake = _WAKE_TEXT_END
+            return _NEED, start + min(MAX_NMEA_LEN, self.max_frame_len), kind
         brk = _LINE_BREAK.search(buf, start + 2, star)
         if brk is not None:
             return self._nmea_cut(buf, start, brk.start())
@@ -595,7 +653,8 @@ class Framer:
         if end > n:
             if n > star + 1 and not _is_hex_prefix(buf, star + 1, n):
                 return self._nmea_cut(buf, start, star + 1)
-            return _NEED, 0, kind
+            self._wake = _WAKE_NOT_HEX
+            return _NEED, end, kind
         if _HEX2.fullmatch(buf, star + 1, end) is None:
             return self._nmea_cut(buf, start, star + 1)
         if _NMEA_ADDRESS.match(buf, start, star) is None:
@@ -623,7 +682,7 @@ class Framer:
         if avail >= 2 and buf[start + 1] & 0xFC:
             return _NOT_FRAME, 0, None
         if avail < 5:
-            return _NEED, 0, None
+            return _NEED, start + (2 if avail < 2 else 5), None
         length = (buf[start + 1] & 0x03) << 8 | buf[start + 2]
         if length < 2 or not _rtcm_number_plausible(buf[start + 3] << 4 | buf[start + 4] >> 4):
             return _NOT_FRAME, 0, None
@@ -632,7 +691,7 @@ class Framer:
         if end - start > self.max_frame_len:
             return _OVERSIZE, 0, kind
         if end > n:
-            return _NEED, 0, kind
+            return _NEED, end, kind
         raw = buf[start:end]
         if crc24q(raw) != 0:
             return _CRC_FAIL, end, kind

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import struct
+import zlib
 from typing import Any
 
 import pynmea2
@@ -27,6 +28,7 @@ from drivers.novatel import (
     crc24q,
     decode_ascii,
     decode_binary,
+    encode_abbreviated,
     encode_ascii,
     encode_binary,
     iter_frames,
@@ -391,3 +393,98 @@ def test_flush_completes_an_abbreviated_log_after_a_read_timeout() -> None:
     assert frame.kind is FrameKind.NOVATEL_ABBREV
     assert isinstance(frame.message, Log) and isinstance(frame.message.body, BestPos)
     assert frame.message.body == decode_ascii(encode_ascii(frame.message.header, frame.message.body)).body
+
+
+# --- chunking: same result, linear cost ------------------------------------------------------
+
+FRAGMENTS = [*(wire for _, wire, _ in MIXED), b"\xaa", b"\xaa\x44\x12", b"#B", b"$G", b"<", b"[", b"\xd3\x00",
+             b"*", b"\r\n", b";", b",", b"<     1\r\n", b"#BESTPOSA,COM1,", b"$GPGGA,", b"*1", b"[COM", b"0\x44"]
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(parts=st.lists(st.sampled_from(FRAGMENTS), max_size=40), data=st.data())
+def test_fragments_in_any_order_give_the_same_frames_and_counts_for_any_chunking(
+    parts: list[bytes], data: st.DataObject
+) -> None:
+    stream = b"".join(parts)
+    cuts = data.draw(st.lists(st.integers(0, len(stream)), max_size=60), label="cuts")
+    points = sorted({0, len(stream), *cuts})
+    chunks = [stream[a:b] for a, b in zip(points, points[1:], strict=False)]
+    one_frames, one_stats = run([stream])
+    frames, stats = run(chunks)
+    assert signature(frames) == signature(one_frames)
+    assert stats.to_dict() == one_stats.to_dict()
+    byte_frames, byte_stats = run([stream[i : i + 1] for i in range(len(stream))])
+    assert signature(byte_frames) == signature(one_frames)
+    assert byte_stats.to_dict() == one_stats.to_dict()
+
+
+def test_each_frame_comes_out_of_the_feed_that_completes_it() -> None:
+    """Waiting for more bytes never holds back a complete frame.
+
+    A frame is known complete at its last byte; a response at its line end (it has no end marker); an
+    abbreviated log at the first byte after its line end (that byte could start a continuation line).
+    """
+    framer = Framer()
+    got: list[tuple[int, FrameKind]] = []
+    for i in range(len(STREAM)):
+        got += [(i, f.kind) for f in framer.feed(STREAM[i : i + 1])]
+    expected = []
+    offset = 0
+    for kind, wire, raw in MIXED:
+        if kind is FrameKind.NOVATEL_ABBREV:
+            expected.append((offset + len(wire), kind))
+        elif kind is FrameKind.RESPONSE:
+            expected.append((offset + len(wire) - 1, kind))
+        else:
+            expected.append((offset + len(raw) - 1, kind))
+        offset += len(wire)
+    assert got == expected
+
+
+def _count_parser_calls(framer: Framer) -> list[int]:
+    calls = [0]
+    for key, parse in list(framer._parsers.items()):
+
+        def counted(*args: Any, _parse: Any = parse) -> Any:
+            calls[0] += 1
+            return _parse(*args)
+
+        framer._parsers[key] = counted
+    return calls
+
+
+def _ascii_log(body_len: int) -> bytes:
+    inner = b"BESTPOSA,COM1,0,80.0,FINESTEERING,2300,345600.000,02000000,cdba,32768;" + b"1," * (body_len // 2)
+    return b"#" + inner + b"*%08x\r\n" % (zlib.crc32(inner) & 0xFFFFFFFF)
+
+
+@pytest.mark.parametrize("name", ["abbreviated", "ascii", "ascii_unterminated", "binary"])
+def test_a_long_frame_fed_byte_by_byte_is_parsed_a_bounded_number_of_times(name: str) -> None:
+    """Cost linear in bytes: before, every 1-byte feed re-parsed the pending frame from its start."""
+    body = sample_bestpos()
+    head = make_header(body, week=2300, seconds=10.0)
+    if name == "abbreviated":
+        stream = encode_abbreviated(head, body).split(b"\r\n", 1)[0] + b"\r\n" + b"<     1\r\n" * 3000 + b"[COM1]"
+    elif name == "ascii":
+        stream = _ascii_log(20000) + b"[COM1]"
+    elif name == "ascii_unterminated":
+        stream = b"#BESTPOSA,COM1," + b"x" * 20000 + b"\r\n[COM1]"
+    else:
+        frame = encode_binary(head, body)
+        stream = frame[:3] + bytes([frame[3]]) + frame[4:8] + struct.pack("<H", 20000) + frame[10:28]
+        stream += bytes(20000)
+        stream += struct.pack("<I", zlib.crc32(stream) & 0xFFFFFFFF)
+        stream += b"[COM1]"
+    framer = Framer()
+    calls = _count_parser_calls(framer)
+    frames = []
+    for i in range(len(stream)):
+        frames += framer.feed(stream[i : i + 1])
+    frames += framer.finish()
+    assert frames[-1].kind is FrameKind.PROMPT
+    # a few rescans per frame or line (sync, header, end), never one per byte
+    per_unit = calls[0] / (3001 if name == "abbreviated" else 2)
+    assert per_unit <= 8, f"{calls[0]} parser calls for {len(stream)} bytes"
+    one = Framer()
+    assert signature(one.feed(stream) + one.finish()) == signature(frames)

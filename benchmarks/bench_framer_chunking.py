@@ -1,0 +1,178 @@
+"""Cost of the NovAtel framer against the size of the chunks it is fed.
+
+A serial port at 460 800 baud delivers 1–64 bytes per read, so :class:`drivers.novatel.Framer`
+must cost the same per byte however the stream is chunked. This feeds 1 MB of a receiver stream
+once in one call and once in chunks of 64, 16, 4 and 1 byte(s), and prints the CPU time of each
+and its ratio to the one-call figure. Goal: 1 MB fed one byte at a time within 3x the one call.
+
+Two streams:
+
+- ``receiver``: what a rover port carries: binary BESTPOS/BESTVEL at 20 Hz (most bytes), ASCII
+  BESTVEL, NMEA GGA, RTCM3 1005, abbreviated-ASCII logs, ``<OK`` responses and port prompts.
+- ``worst``: the shapes that used to be quadratic: abbreviated logs of 400 short continuation
+  lines, ASCII candidates that run 20 000 bytes without their ``*``, long binary logs.
+
+CPU time of this thread (the machine is shared), median of ``--rounds`` rounds; the frames and
+the counts of every chunking are checked to equal the one-call result. Run::
+
+    python benchmarks/bench_framer_chunking.py [--mb 1] [--rounds 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import struct
+import time
+import zlib
+
+from drivers.novatel import (
+    BestPos,
+    BestVel,
+    Datum,
+    Framer,
+    PositionType,
+    SolutionStatus,
+    encode_abbreviated,
+    encode_ascii,
+    encode_binary,
+    encode_ok,
+    encode_prompt,
+    make_header,
+    xor_checksum,
+)
+from drivers.novatel.crc import crc24q
+
+GOAL_RATIO = 3.0
+
+
+def _bestpos(i: int) -> BestPos:
+    return BestPos(
+        SolutionStatus.SOL_COMPUTED, PositionType.NARROW_INT, 48.1173 + i * 1e-7, 11.5167, 545.4, 46.9, Datum.WGS84,
+        0.012, 0.011, 0.021, "131", 1.0, 0.0, 20, 18, 18, 16, 0, 0x02, 0x11, 0x33,
+    )
+
+
+def _gga(i: int) -> bytes:
+    body = f"GPGGA,{120000 + i % 40000:06d}.00,4807.038,N,01131.000,E,4,18,0.9,545.4,M,46.9,M,1.0,0131"
+    return f"${body}*{xor_checksum(body.encode()):02X}\r\n".encode()
+
+
+def _rtcm_1005() -> bytes:
+    # Station 2003 antenna reference point (bits packed by hand: 152-bit payload of message 1005).
+    bits = "".join(
+        format(v & ((1 << w) - 1), f"0{w}b")
+        for v, w in [(1005, 12), (2003, 12), (0, 6), (1, 1), (0, 1), (0, 1), (0, 1), (41770001234, 38), (0, 1),
+                     (0, 1), (8550005678, 38), (0, 2), (47270009000, 38)]
+    )
+    payload = int(bits, 2).to_bytes(len(bits) // 8, "big")
+    frame = bytes([0xD3, len(payload) >> 8, len(payload) & 0xFF]) + payload
+    return frame + crc24q(frame).to_bytes(3, "big")
+
+
+def _long_binary(body_len: int) -> bytes:
+    # A long-header log with a message ID the decoder does not know: framed and CRC-checked only.
+    header = struct.pack("<3BBHbBHHBBHlLHH", 0xAA, 0x44, 0x12, 28, 9999, 0, 32, body_len, 0, 0, 180, 2300, 345600000,
+                         0, 0, 0)
+    frame = header + bytes(range(256)) * (body_len // 256) + bytes(body_len % 256)
+    return frame + struct.pack("<I", zlib.crc32(frame) & 0xFFFFFFFF)
+
+
+def receiver_stream(size: int) -> bytes:
+    parts: list[bytes] = []
+    total = 0
+    i = 0
+    vel = BestVel(SolutionStatus.SOL_COMPUTED, PositionType.NARROW_INT, 0.05, 1.0, 13.5, 87.25, -0.02, 0.0)
+    rtcm = _rtcm_1005()
+    while total < size:
+        pos = _bestpos(i)
+        head = make_header(pos, week=2300, seconds=345600.0 + i * 0.05, port="COM1", sequence=i % 100)
+        vhead = make_header(vel, week=2300, seconds=345600.0 + i * 0.05, port="COM1")
+        chunk = [encode_binary(head, pos), encode_binary(vhead, vel)]
+        if i % 20 == 0:
+            chunk += [encode_ascii(vhead, vel), _gga(i), rtcm]
+        if i % 100 == 0:
+            chunk += [encode_abbreviated(head, pos), encode_ok(), encode_prompt("COM1")]
+        for c in chunk:
+            parts.append(c)
+            total += len(c)
+        i += 1
+    return b"".join(parts)[:size]
+
+
+def worst_stream(size: int) -> bytes:
+    pos = _bestpos(0)
+    head = make_header(pos, week=2300, seconds=345600.0, port="COM1")
+    abbrev_header = encode_abbreviated(head, pos).split(b"\r\n", 1)[0] + b"\r\n"
+    pieces = [
+        abbrev_header + b"<     1\r\n" * 400,
+        b"#BESTPOSA,COM1," + b"x" * 20000 + b"\r\n",
+        _long_binary(16000),
+        b"\x00" * 2000,
+    ]
+    unit = b"".join(pieces)
+    return (unit * (size // len(unit) + 1))[:size]
+
+
+class _NoFramer:
+    """The floor: a method that does nothing, called once per chunk."""
+
+    def feed(self, data: bytes) -> list[object]:
+        return []
+
+
+def run(chunks: list[bytes]) -> tuple[float, list[tuple[object, bytes]], dict[str, object]]:
+    """CPU time of feeding ``chunks`` (already cut, as a port's reads deliver them) and finishing."""
+    framer = Framer()
+    feed = framer.feed
+    frames = []
+    t0 = time.thread_time()
+    for chunk in chunks:
+        frames += feed(chunk)
+    frames += framer.finish()
+    elapsed = time.thread_time() - t0
+    return elapsed, [(f.kind, f.raw) for f in frames], framer.stats.to_dict()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--mb", type=float, default=1.0, help="stream size in MB (default 1)")
+    parser.add_argument("--rounds", type=int, default=3, help="rounds per figure; the median is shown (default 3)")
+    args = parser.parse_args()
+    size = int(args.mb * 1_000_000)
+    verdicts = []
+    for name, data in (("receiver", receiver_stream(size)), ("worst", worst_stream(size))):
+        reference: tuple[list[tuple[object, bytes]], dict[str, object]] | None = None
+        figures: dict[int, float] = {}
+        for chunk in (len(data), 64, 16, 4, 1):
+            chunks = [data[i : i + chunk] for i in range(0, len(data), chunk)]
+            times = []
+            for _ in range(args.rounds):
+                elapsed, frames, stats = run(chunks)
+                times.append(elapsed)
+                if reference is None:
+                    reference = (frames, stats)
+                elif (frames, stats) != reference:
+                    raise SystemExit(f"{name}: chunks of {chunk} B give other frames or counts than one call")
+            figures[chunk] = statistics.median(times)
+        assert reference is not None
+        one = figures[len(data)]
+        print(f"{name}: {len(data) / 1e6:.2f} MB, {len(reference[0])} frames")
+        for chunk, t in figures.items():
+            label = "one call" if chunk == len(data) else f"{chunk:>3} B chunks"
+            print(f"  {label:>13}: {t:7.3f} s CPU  ({len(data) / t / 1e6:6.2f} MB/s)  {t / one:5.2f}x one call")
+        ones = [data[i : i + 1] for i in range(len(data))]
+        noop = _NoFramer().feed
+        t0 = time.thread_time()
+        for chunk_1 in ones:
+            noop(chunk_1)
+        floor = time.thread_time() - t0
+        print(f"  floor (a no-op method called per byte): {floor:.3f} s CPU = {floor / one:.2f}x one call")
+        ratio = figures[1] / one
+        verdicts.append(f"{name} {ratio:.2f}x")
+        print(f"  goal: 1-byte feed <= {GOAL_RATIO:.0f}x one call: {'met' if ratio <= GOAL_RATIO else 'NOT met'}")
+    print("summary: 1-byte feed / one call: " + ", ".join(verdicts))
+
+
+if __name__ == "__main__":
+    main()
