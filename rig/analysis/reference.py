@@ -24,9 +24,11 @@ Three methods (the result says which in ``method``):
     the filter does not treat time-correlated baseline noise as independent samples.
   * course, states [ν, s_a, c_a] with ν the direction of the CG velocity (counter-clockwise from
     east, β = ν − ψ): ν̇ = a_n/V, with the normal acceleration a_n from the lateral accelerometer
-    (static roll correction a_y/(1 + g·k_φ), then a residual scale s_a and bias c_a as random-walk
-    states) and V from GNSS; the measurement is the direction of the CG velocity obtained from the
-    velocity at A, the smoothed heading and the bias-corrected yaw rate. Without a lateral
+    (gravity's roll component taken out with the roll model's dynamic roll angle,
+    a = (a_y − g·sin φ)/cos φ, or without a roll model with the static gain, a_y/(1 + g·k_φ); then a
+    residual scale s_a and bias c_a as random-walk states) and V from GNSS; the measurement is the
+    direction of the CG velocity obtained from the velocity at A, the smoothed heading and the
+    bias-corrected yaw rate. Without a lateral
     accelerometer the course follows the corrected gyro (ν̇ = r + β̇, β̇ white).
 
   β = ν − ψ with variance σ_ν² + σ_ψ² (the channels see independent measurement errors).
@@ -34,7 +36,9 @@ Three methods (the result says which in ``method``):
 Before any method: the delay of the IMU time stamps behind the GNSS epochs (sensor filter and CAN
 output latency, ≈ 17 ms on the simulated cluster) is estimated from the gyro-integrated yaw against
 the GNSS yaw and removed, and the GNSS noise is measured on the session (heading from the scatter of
-the baseline length, with its Gauss–Markov/white split; velocity from second differences), unless
+the baseline length, with its Gauss–Markov/white split fitted to the length's autocorrelation on
+records long enough to tell it, else all Gauss–Markov with the specified τ; velocity from second
+differences), unless
 ``imu_delay_s`` / ``noise_from_data=False`` say otherwise.
 
 Body roll: a roof antenna z ≈ 1 m above the CG picks up −p·z of lateral velocity from the roll rate
@@ -513,14 +517,36 @@ _MAD_TO_SIGMA = 1.482602218505602
 _MIN_NOISE_SAMPLES = 40
 
 
-def _noise_from_data(gnss: GnssEpochs, ok: BoolArray, baseline_m: float) -> _NoiseEstimate | None:
+def _acf(e: FloatArray, t: FloatArray, period: float, lags: npt.NDArray[np.int_]) -> FloatArray:
+    """Sample autocorrelation of ``e`` (NaN: no sample) at ``lags`` nominal periods (NaN: too few pairs)."""
+    c0 = float(np.nanmean(e * e))
+    rho = np.full(lags.size, np.nan)
+    for i, lag in enumerate(lags):
+        if lag >= e.size:
+            break
+        prod = e[lag:] * e[:-lag]
+        # only pairs ``lag`` nominal periods apart
+        same = np.abs(t[lag:] - t[:-lag] - lag * period) < 0.25 * period
+        pr = prod[same & np.isfinite(prod)]
+        if pr.size >= _MIN_NOISE_SAMPLES and c0 > 0.0:
+            rho[i] = float(np.mean(pr)) / c0
+    return rho
+
+
+def _noise_from_data(gnss: GnssEpochs, ok: BoolArray, baseline_m: float, prior_tau_s: float) -> _NoiseEstimate | None:
     """Heading and velocity noise from the session (None: too few usable epochs).
 
     - Heading: the relative position error of B → A along the baseline shows in the measured
       length, the one across it in the azimuth; both have the same statistics (the relative
-      error is isotropic in the horizontal plane), so σ_ψ = σ(length)/L, robustly (MAD). The
-      split into a first-order Gauss–Markov share a (correlation φ per epoch) and white noise
-      comes from the lag-1 and lag-2 autocorrelations of the length: ρ1 = a·φ, ρ2 = a·φ².
+      error is isotropic in the horizontal plane), so σ_ψ = σ(length)/L, robustly (MAD), corrected
+      for the variance of the record's own mean that the scatter about it misses.
+    - Its split into a first-order Gauss–Markov share a with correlation time τ and white noise: a
+      least-squares fit to the length's autocorrelation (:func:`_fit_gauss_markov_acf`) when the
+      record holds at least ``_MIN_FIT_SPAN_S`` of usable epochs. A shorter record holds too few
+      correlation times to tell a and τ (on 20 s recorded sessions of a τ = 1 s process the fit gave
+      τ from 0.2 to 18 s and a from 0.24 to 1): the heading noise is then taken as all Gauss–Markov
+      with the specified ``prior_tau_s``, for a given scatter the reading with the most power at the
+      low frequencies that no smoothing removes.
     - Velocity (per axis): white Doppler noise of σ gives second differences of σ·√6 while a
       car's velocity at 10–20 Hz is smooth on that scale; pooled over east and north, robustly.
     """
@@ -537,20 +563,16 @@ def _noise_from_data(gnss: GnssEpochs, ok: BoolArray, baseline_m: float) -> _Noi
     # reject outliers (a ±4σ window) before the autocorrelations
     use = m & (np.abs(np.nan_to_num(resid, nan=np.inf)) <= 4.0 * max(sig, 1e-9))
     e = np.where(use, resid - np.mean(resid[use]), np.nan)
-    c0 = float(np.nanmean(e * e))
-    rho = []
-    for lag in (1, 2):
-        prod = e[lag:] * e[:-lag]
-        # only pairs one (two) nominal periods apart
-        same = np.abs(t[lag:] - t[:-lag] - lag * period) < 0.25 * period
-        pr = prod[same & np.isfinite(prod)]
-        rho.append(float(np.mean(pr)) / c0 if pr.size >= _MIN_NOISE_SAMPLES and c0 > 0.0 else 0.0)
-    r1, r2 = rho
-    if r1 > 0.05 and r2 > 0.0:
-        phi = float(np.clip(r2 / r1, 0.05, 0.999))
-        share = float(np.clip(r1 / phi, 0.0, 1.0))
+    n_use = int(np.count_nonzero(use))
+    max_lag = max(2, min(round(_ACF_MAX_LAG_S / period), n_use // 4))
+    lags = np.arange(1, max_lag + 1)
+    if n_use * period >= _MIN_FIT_SPAN_S:
+        share, phi, v_mean = _fit_gauss_markov_acf(lags, [(_acf(e, t, period, lags), n_use, 1)], period)
     else:
-        phi, share = 0.05, 0.0
+        share, phi = 1.0, math.exp(-period / max(prior_tau_s, 1e-3))
+        v_mean = ((1.0 - share) + share * (1.0 + phi) / (1.0 - phi)) / n_use
+    # the record's own mean was removed: its variance (v_mean·σ²) is missing from the scatter
+    sig = sig / math.sqrt(max(1.0 - v_mean, 0.25))
     tau = -period / math.log(phi)
     # velocity
     ve, vn = gnss.velocity_east, gnss.velocity_north
@@ -563,6 +585,51 @@ def _noise_from_data(gnss: GnssEpochs, ok: BoolArray, baseline_m: float) -> _Noi
     dv = np.concatenate(d2)
     sig_v = _robust_std(dv) / math.sqrt(6.0) if dv.size >= _MIN_NOISE_SAMPLES else math.nan
     return _NoiseEstimate(sig / baseline_m, share, tau, sig_v, int(np.count_nonzero(m)))
+
+
+_ACF_MAX_LAG_S = 4.0
+_TAU_GRID_MAX_S = 20.0
+_MIN_FIT_SPAN_S = 120.0
+"""Usable heading epochs (s) below which the Gauss–Markov split is not fitted (:func:`_noise_from_data`)."""
+
+
+def _fit_gauss_markov_acf(
+    lags: npt.NDArray[np.int_], series: list[tuple[FloatArray, int, int]], period: float
+) -> tuple[float, float, float]:
+    """Share a and lag-1 coefficient φ of a Gauss–Markov + white noise from sample autocorrelations.
+
+    ``series``: (ρ̂ at ``lags``, samples per fitted run n, parameters p fitted per run: 1 for a mean,
+    2 for a straight line). Least squares over every lag of every series (not just lags 1 and 2, whose
+    ratio φ = ρ2/ρ1 is hopelessly noisy on a short record: it gave τ = 50 s or 0.4 s for a 1 s process
+    on 20 s sessions). The sample autocorrelation about a fitted mean (line) is biased low by the
+    variance that fit absorbed, ≈ p·v with v = [(1 − a) + a(1 + φ)/(1 − φ)]/n the variance of a mean
+    of n samples (relative to σ²); the model is ρ̂(L) = (a·φ^L − p·v)/(1 − p·v). Grid search over
+    τ = −period/ln φ (half a period to 20 s) and a; returns (a, φ, v) with v for the first series.
+    """
+    taus = np.geomspace(0.5 * period, _TAU_GRID_MAX_S, 80)
+    phis = np.exp(-period / taus)
+    shares = np.linspace(0.0, 1.0, 51)
+    a = shares[:, None, None]
+    ph = phis[None, :, None]
+    sse = np.zeros((shares.size, phis.size))
+    v_first = np.zeros((shares.size, phis.size))
+    used = 0
+    for k, (rho, n, p) in enumerate(series):
+        ok = np.isfinite(rho)
+        if np.count_nonzero(ok) < 2:
+            continue
+        L = lags[ok].astype(float)
+        v = ((1.0 - a) + a * (1.0 + ph) / (1.0 - ph)) / max(n, 1)
+        pv = np.minimum(p * v, 0.75)
+        model = (a * ph ** L[None, None, :] - pv) / (1.0 - pv)
+        sse += np.sum((model - rho[ok][None, None, :]) ** 2, axis=2)
+        if k == 0:
+            v_first = v[:, :, 0]
+        used += 1
+    if not used:
+        return 0.0, math.exp(-2.0), 0.0
+    i, j = np.unravel_index(int(np.argmin(sse)), sse.shape)
+    return float(shares[i]), float(phis[j]), float(v_first[i, j])
 
 
 _DELAY_LAG_S = 0.5
@@ -619,7 +686,10 @@ def _estimate_imu_delay(
         return 0.0, se
     # below a quarter of the IMU sample period the trapezoid integration itself is that uncertain
     imu_period = float(np.median(np.diff(imu.t)))
-    if abs(d) < max(3.0 * se, 0.25 * imu_period):
+    # A fit that is merely not 3σ away from 0 is still the best estimate: on a steady circle (one turn-in
+    # to excite it, σ ≈ 7 ms) zeroing an 18 ms delay left r·d ≈ 0.3° between the gyro-propagated yaw and
+    # the GNSS yaw for the whole circle, which the smoother turned into heading error.
+    if abs(d) < 0.25 * imu_period:
         return 0.0, se
     return d, se
 
@@ -797,7 +867,9 @@ def reference_sideslip(
 
     # position σ per antenna per axis → heading σ (cross-baseline components of both errors)
     # (receiver-reported σ, when given, describe each antenna alone: scale them to the relative part)
-    est = _noise_from_data(gnss, heading_ok, geometry.baseline_length_m) if noise_from_data else None
+    est = None
+    if noise_from_data:
+        est = _noise_from_data(gnss, heading_ok, geometry.baseline_length_m, gspec.baseline_tau_s)
     gm_share = 1.0
     if est is not None:
         sig_heading = np.full(n, est.heading_sigma_rad)
