@@ -109,6 +109,7 @@ def record(
         raise ConfigError(
             f"{config}: receivers {simulated} are simulated (sim://); record them with `rig sim record {config}`"
         )
+    _check_free_space(cfg, out)  # before any device is set up
     stop = threading.Event()
     session = RecordSession(cfg, out_dir=out, name=name, config_path=config)
     with _stop_on_signals(stop) as got:
@@ -161,6 +162,7 @@ def sim_record(
     factor = speed if speed is not None else cfg.simulation.speed
     if fast:
         factor = max(factor, FAST_SPEED)
+    _check_free_space(cfg, out)  # before the simulated world and its devices start
     stop = threading.Event()
     with _stop_on_signals(stop) as got, _dashboard(not no_dashboard) as tick:
         result = record_simulated(
@@ -174,6 +176,14 @@ def sim_record(
         err=True,
     )
     _report(result.summary, got.get("signal"))
+
+
+def _check_free_space(cfg: SessionConfig, out: Path | None) -> None:
+    """Refuse a disk below ``output.min_free_disk_mb`` at once, not after the devices were set up."""
+    from rig.recorder import RecorderOptions
+    from rig.recorder.writer import check_free_space
+
+    check_free_space(out if out is not None else Path(cfg.output.directory), RecorderOptions.from_output(cfg.output))
 
 
 def _check_simulated(cfg: SessionConfig, path: Path) -> None:

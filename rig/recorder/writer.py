@@ -17,7 +17,11 @@ Design:
 - Disk space: below ``warn_free_bytes`` an event is written once; below ``min_free_bytes`` the
   recording stops with the part finalized and :class:`~vsccore.errors.DiskFullError`. If a write
   still fails (ENOSPC), a reserve file is released and the part is finalized in place up to its
-  last complete record (or, if even that fails, left readable up to it).
+  last complete record (or, if even that fails, left readable up to it); the messages of the chunk
+  in flight are counted as lost (summary and the part-end record). The reserve is locked while
+  recording, so a reserve left by a killed recorder is recognised and removed by the next recording
+  in that directory (or ``rig recover``). :func:`check_free_space` lets a command refuse a full disk
+  before it sets up any device.
 """
 
 from __future__ import annotations
@@ -40,8 +44,8 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType
 from mcap.writer import Writer as McapWriter
 
 import vsccore
-from rig.recorder.reader import part_path
-from rig.recorder.recover import finalize_in_place
+from rig.recorder.reader import PartScan, part_path
+from rig.recorder.recover import finalize_in_place, lock_reserve, remove_stale_reserves, reserve_path
 from rig.recorder.sources import ChannelTiming, Source, SourceStats, _Channel, _DropWindow, _Hub, channel_timings
 from rig.topics import (
     METADATA_CALIBRATION,
@@ -68,6 +72,7 @@ __all__ = [
     "Recorder",
     "RecorderOptions",
     "RecordingSummary",
+    "check_free_space",
     "session_metadata",
 ]
 
@@ -200,7 +205,7 @@ class RecordingSummary:
 
     parts: tuple[Path, ...]
     messages: int
-    """Messages written (all parts)."""
+    """Messages in the files (all parts; those lost in a failed write are not counted)."""
     sources: tuple[SourceStats, ...]
     error: RigError | None
     """Why the recording ended early (disk full, write error), or None."""
@@ -208,10 +213,13 @@ class RecordingSummary:
     """Every part ends with a summary and index."""
     lost_in_queues: int = 0
     """Messages still queued when the recording failed (0 after a clean stop)."""
+    lost_in_write: int = 0
+    """Messages handed to the MCAP writer that never reached the file (the chunk in flight at a write error)."""
 
     @property
     def dropped(self) -> int:
-        return sum(s.dropped for s in self.sources)
+        """Messages not recorded: dropped by full queues, still queued or lost in the failed write."""
+        return sum(s.dropped for s in self.sources) + self.lost_in_queues + self.lost_in_write
 
 
 class _DiskLowError(Exception):
@@ -320,8 +328,10 @@ class Recorder:
         self._sync_request = 0
         self._sync_done = 0
         self._lost_in_queues = 0
+        self._lost_in_write = 0
         self._host = socket.gethostname()
-        self._reserve = self._base.with_name(self._base.name + ".reserve")
+        self._reserve = reserve_path(self._base)
+        self._reserve_fd: int | None = None
 
     # --- public API ------------------------------------------------------------------------------
 
@@ -374,15 +384,8 @@ class Recorder:
         first = part_path(self._base, 0)
         if first.exists() and not self._opts.overwrite:
             raise SessionFileError(f"{first} already exists (choose another session name or set overwrite)")
-        try:
-            free = self._disk_free(directory)
-        except OSError as exc:
-            raise SessionFileError(f"cannot read the free space of {directory}: {exc}") from exc
-        if free < self._opts.min_free_bytes:
-            raise DiskFullError(
-                f"{directory}: only {free / 1e6:.0f} MB free, below the {self._opts.min_free_bytes / 1e6:.0f} MB "
-                "minimum (output.min_free_disk_mb); not starting the recording"
-            )
+        check_free_space(directory, self._opts, self._disk_free)
+        remove_stale_reserves(directory)
         self._make_reserve()
         self._hub.accepting = True
         self._thread = threading.Thread(target=self._run, name=f"rig-recorder:{self._base.name}")
@@ -416,11 +419,12 @@ class Recorder:
             self._remove_reserve()
             self._summary = RecordingSummary(
                 parts=tuple(self._parts),
-                messages=self._messages,
+                messages=self._messages - self._lost_in_write,
                 sources=tuple(s.stats() for s in self._hub.sources),
                 error=self._error,
                 finalized=self._all_finalized and self._thread is not None and not self._thread.is_alive(),
                 lost_in_queues=self._lost_in_queues,
+                lost_in_write=self._lost_in_write,
             )
             return self._summary
 
@@ -577,15 +581,24 @@ class Recorder:
             if q:
                 n = min(len(q), batch)
                 pop = q.popleft
-                for _ in range(n):
-                    ch, log_ns, pub_ns, data = pop()
-                    if log_ns < ch.written_log:  # several producers (events): the writer's order decides
-                        log_ns = ch.written_log
-                    ch.written_log = log_ns
-                    if ch.epoch != epoch:
-                        self._register(part, ch)
-                    add(ch.mcap_id, log_ns, data, pub_ns, ch.seq & 0xFFFFFFFF)
-                    ch.seq += 1
+                i = -1
+                try:
+                    for i in range(n):  # noqa: B007 - read in the except clause
+                        ch, log_ns, pub_ns, data = pop()
+                        if log_ns < ch.written_log:  # several producers (events): the writer's order decides
+                            log_ns = ch.written_log
+                        ch.written_log = log_ns
+                        if ch.epoch != epoch:
+                            self._register(part, ch)
+                        add(ch.mcap_id, log_ns, data, pub_ns, ch.seq & 0xFFFFFFFF)
+                        ch.seq += 1
+                except BaseException:
+                    # a write failed inside add (a chunk going out): count what this round handed over,
+                    # the message in hand included, so the loss is measured against the file afterwards
+                    src._written += i + 1
+                    part.messages += total + i + 1
+                    self._messages += total + i + 1
+                    raise
                 src._written += n
                 total += n
             if src._drops is not None and len(q) < src._maxsize:
@@ -787,16 +800,37 @@ class Recorder:
         with contextlib.suppress(OSError):
             part.stream.close()
         self._remove_reserve()
-        report = finalize_in_place(part.path, opener=self._opener, fsync=self._fsync)
+        disk_full = isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
+        handed = part.messages
+
+        def part_end(scan: PartScan) -> dict[str, str]:
+            """The part-end record of a failed part: what reached the file and what was lost."""
+            end = {
+                "reason": "disk_full" if disk_full else "write_error",
+                "next_part": "",
+                "messages": str(scan.message_count),
+                "lost_in_write": str(max(0, handed - scan.message_count)),
+                "error": str(exc),
+                "ended_host_ns": str(self._clock.now_ns()),
+            }
+            for s in self._hub.sources:
+                st = s.stats()
+                end[f"source.{st.name}.written"] = str(st.written)
+                end[f"source.{st.name}.dropped"] = str(st.dropped)
+            return end
+
+        report = finalize_in_place(part.path, opener=self._opener, fsync=self._fsync, part_end=part_end)
+        lost = max(0, handed - report.messages)
+        self._lost_in_write += lost
+        lost_text = f"; {lost} messages of the chunk in flight were lost" if lost else ""
         if report.finalized:
             self._all_finalized = True
-            state = f"finalized up to its last complete record ({report.messages} messages)"
+            state = f"finalized up to its last complete record ({report.messages} messages){lost_text}"
         else:
             state = (
-                f"readable up to its last complete record ({report.messages} messages) but not finalized "
-                f"({report.error}); run `rig recover {part.path}`"
+                f"readable up to its last complete record ({report.messages} messages{lost_text}) but not "
+                f"finalized ({report.error}); run `rig recover {part.path}`"
             )
-        disk_full = isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
         if disk_full:
             self._error = DiskFullError(f"{part.path}: disk full while writing; recording stopped; the file is {state}")
         else:
@@ -815,6 +849,7 @@ class Recorder:
                     f.write(block[:left])
                     left -= len(block)
                 f.flush()
+            self._reserve_fd = lock_reserve(self._reserve)
         except OSError as exc:
             self._remove_reserve()
             if exc.errno in (errno.ENOSPC, errno.EDQUOT):
@@ -822,12 +857,48 @@ class Recorder:
             raise SessionFileError(f"{self._reserve}: cannot create the disk-space reserve: {exc}") from exc
 
     def _remove_reserve(self) -> None:
+        if self._reserve_fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._reserve_fd)
+            self._reserve_fd = None
         try:
             self._reserve.unlink()
         except FileNotFoundError:
             pass
         except OSError as exc:
             log.warning("cannot remove %s: %s", self._reserve, exc)
+
+
+def _existing(directory: Path) -> Path:
+    """``directory`` or its nearest existing ancestor (the file system it will be created on)."""
+    d = directory.absolute()
+    while not d.exists() and d.parent != d:
+        d = d.parent
+    return d
+
+
+def check_free_space(
+    directory: Path | str, options: RecorderOptions, disk_free: Callable[[Path], int] | None = None
+) -> int:
+    """Refuse to record into ``directory`` with less free space than ``options.min_free_bytes``.
+
+    Call it before anything else is set up (devices, simulated world): the recorder checks again
+    when it starts. ``directory`` need not exist yet (its nearest existing ancestor is checked).
+    Returns the free bytes; raises :class:`~vsccore.errors.DiskFullError` naming the directory and
+    the configuration key, or :class:`~vsccore.errors.SessionFileError` when it cannot be read.
+    """
+    d = Path(directory)
+    where = _existing(d)
+    try:
+        free = (disk_free or _default_disk_free)(where)
+    except OSError as exc:
+        raise SessionFileError(f"cannot read the free space of {d}: {exc}") from exc
+    if free < options.min_free_bytes:
+        raise DiskFullError(
+            f"{d}: only {free / 1e6:.0f} MB free, below the {options.min_free_bytes / 1e6:.0f} MB "
+            "minimum (output.min_free_disk_mb); not starting the recording"
+        )
+    return free
 
 
 def _flush_writer(writer: McapWriter) -> None:
