@@ -26,6 +26,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    SecretStr,
     ValidationError,
     field_validator,
     model_validator,
@@ -329,6 +330,19 @@ class RelayConfig(_Model):
     ntrip_user_env: str = "VSC_RIG_NTRIP_USER"
     ntrip_password_env: str = "VSC_RIG_NTRIP_PASSWORD"
     gga_period_s: Positive = 10.0
+    source_password: SecretStr | None = Field(default=None, exclude=True, repr=False)
+    """A password given in the ``source`` URL, split off on reading (``source`` keeps ``***``); never dumped."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _split_source_password(cls, data: Any) -> Any:
+        from drivers.relay.endpoints import redact_endpoint
+
+        if isinstance(data, Mapping) and isinstance(data.get("source"), str):
+            redacted = redact_endpoint(data["source"])
+            if redacted.password is not None:
+                data = {**data, "source": redacted.text, "source_password": redacted.password.reveal()}
+        return data
 
 
 class CanRoleConfig(_Model):
@@ -476,6 +490,10 @@ class SimulationConfig(_Model):
     true_optical_zero_deg: dict[str, float] = Field(default_factory=dict)
     gnss: SimGnssConfig = SimGnssConfig()
     daq_clock_ppm: float = 30.0
+    governed: bool = True
+    """Simulated time waits for a device or reader that fell behind (false: the host's real latency shows)."""
+    governor_budget_ms: Positive = 1.0
+    """How far (ms of simulated time) a device or reader may fall behind before simulated time waits."""
 
 
 class ValidationConfig(_Model):

@@ -163,7 +163,7 @@ def _record(
         f"{summary.recording.messages} messages, {size / 1e6:.1f} MB, dropped {summary.recording.dropped}, "
         f"simulated devices behind {skipped}, device errors {sum(summary.device_errors.values())}"
     )
-    lines = [head, "    RTK fixed: " + (", ".join(fixed) or "-")]
+    lines = [head, "    " + rec.governor_text, "    RTK fixed: " + (", ".join(fixed) or "-")]
     for topic, n in sorted(ds.topic_counts.items()):
         lines.append(f"    {topic:<28} {n:>8}")
     if speed > 1.0:

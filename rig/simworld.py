@@ -75,7 +75,7 @@ from sim_devices.gnss import (
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from sim_devices.vehicle import Drive, GroundTruth, Scenario, VehicleParams, demo_drive, make_scenario, simulate
 from sim_devices.vsc_ecu import EcuOutputs, VscEcu, VscEcuConfig, simulate_ecu
-from vsccore.clock import Clock, ScaledClock
+from vsccore.clock import UNBOUNDED_NS, Clock, ClockGovernor, GovernorStats, Participant, ScaledClock, participant
 from vsccore.errors import ConfigError, DeviceError, SimulationError
 from vsccore.gpstime import NS_PER_S, gps_ns_to_unix_ns
 
@@ -132,10 +132,11 @@ class SimCanLink:
 class _LinkedBus(can.BusABC):
     """A python-can bus behind a :class:`SimCanLink`: a USB adapter whose cable can be pulled."""
 
-    def __init__(self, inner: can.BusABC, link: SimCanLink) -> None:
+    def __init__(self, inner: can.BusABC, link: SimCanLink, reader: Participant | None = None) -> None:
         super().__init__(channel=getattr(inner, "channel_info", "sim"))
         self._inner = inner
         self._link = link
+        self._reader = reader
         self.channel_info = f"simulated adapter on {inner.channel_info}"
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
@@ -144,6 +145,9 @@ class _LinkedBus(can.BusABC):
         msg = self._inner.recv(timeout)
         if not self._link.connected:
             raise can.CanOperationError("simulated CAN adapter unplugged")
+        if msg is not None and self._reader is not None:
+            # the simulated ECU's stamp of the frame just taken: its sender sees how far this reader got
+            self._reader.set_value(round(msg.timestamp * 1e9))
         return msg, False
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
@@ -212,6 +216,10 @@ class SimWorld:
             then has the interpreter to itself, so the clock can run faster. The DAQ and the
             truth topic stay in this process; faults (unplugging) of receivers and ECUs are only
             available with the devices in this process.
+        governed: run a governed clock (default ``simulation.governed``): simulated time waits,
+            in both processes, for any device or reader more than ``simulation.governor_budget_ms``
+            behind (:class:`~vsccore.clock.ClockGovernor`), so a busy host makes the session slower,
+            not late. False: the host's scheduling delays show, magnified by the speed factor.
     """
 
     def __init__(
@@ -226,6 +234,7 @@ class SimWorld:
         truth_rate_hz: float = 1000.0,
         truth: GroundTruth | None = None,
         device_process: bool = False,
+        governed: bool | None = None,
     ) -> None:
         if cfg.simulation is None:
             raise ConfigError("simulation: a simulated session needs a [simulation] table in its configuration")
@@ -235,6 +244,7 @@ class SimWorld:
         self.speed = float(speed if speed is not None else sim.speed)
         if not (math.isfinite(self.speed) and self.speed > 0):
             raise ConfigError(f"simulation.speed: must be > 0, got {self.speed}")
+        self.governed = sim.governed if governed is None else governed
         self.rtk = rtk or RtkParams()
         params = VehicleParams.from_mapping(cfg.profile.vehicle.model_dump(), section="vehicle")
         self.drive = drive if drive is not None else drive_from_name(sim.drive, heading_deg=sim.initial_heading_deg)
@@ -295,7 +305,11 @@ class SimWorld:
             if self._host is not None:
                 # the host process imports and builds its devices before the clock starts
                 self._host.spawn()
-            self.clock = clock if clock is not None else self.timebase.make_clock(self.speed, self.lead_s)
+            if clock is None:
+                governor = (ClockGovernor.create(round(self.sim.governor_budget_ms * 1e6))
+                            if self.governed else None)
+                clock = self.timebase.make_clock(self.speed, self.lead_s, governor)
+            self.clock = clock
             if self._host is not None:
                 self._host.start(self.clock)
             else:
@@ -355,6 +369,8 @@ class SimWorld:
         if self._dir is not None:
             shutil.rmtree(self._dir, ignore_errors=True)
             self._dir = None
+        if self.clock is not None and self.clock.governor is not None:
+            self.clock.governor.close()  # statistics stay readable
         if errors:
             raise SimulationError(f"sim world: {len(errors)} devices failed to stop: {errors[0]}") from errors[0]
 
@@ -364,6 +380,28 @@ class SimWorld:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    def governor_stats(self) -> GovernorStats | None:
+        """How much the governed clock had to hold simulated time back (None: not governed)."""
+        if self.clock is None or self.clock.governor is None:
+            return None
+        return self.clock.governor.stats()
+
+    def governor_summary(self) -> str:
+        """One line: how much the clock slowed, and for whom."""
+        stats = self.governor_stats()
+        if stats is None or self.clock is None:
+            return "clock not governed (the host's latency shows in simulated time)"
+        wall = self.clock.wall_ns()
+        text = (f"governed clock: paused {stats.paused_wall_ns / 1e9:.1f} s of {wall / 1e9:.1f} s wall "
+                f"({stats.pauses} pauses, budget {stats.budget_ns / 1e6:.0f} ms), effective speed "
+                f"{stats.effective_speed(self.speed, wall):.2f}× of {self.speed:g}×")
+        worst = sorted(stats.blamed_wall_ns.items(), key=lambda kv: -kv[1])[:3]
+        if worst:
+            text += "; waited for " + ", ".join(f"{n} {v / 1e9:.1f} s" for n, v in worst)
+        if stats.ignored:
+            text += f"; {stats.ignored} stalled participants released"
+        return text
 
     def wait_end(self, stop: threading.Event | None = None) -> bool:
         """Wait until the drive has ended on the clock; False if ``stop`` was set first."""
@@ -441,7 +479,8 @@ class SimWorld:
         # A frame is late only because this host was busy (the simulated ECU never is): send it late
         # with its true time stamp rather than drop it, unless the host fell seconds behind.
         ecu = VscEcu(self.truth, bus, clock, self.timebase.truth_start_ns, self._ecu_config,
-                     outputs=self._ecu_outputs, max_lag_s=max(0.5, 2.0 * self.speed))
+                     outputs=self._ecu_outputs, max_lag_s=max(0.5, 2.0 * self.speed),
+                     reader=can_reader_name(cc.channel), name=f"ecu:{cc.channel}")
         ecu.start()
         self.ecus[cc.channel] = ecu
 
@@ -487,9 +526,12 @@ class SimWorld:
         """
         if not self.can_link.connected:
             raise DeviceError(f"{config.describe()}: simulated CAN adapter unplugged")
+        reader = None
+        if config.interface == "virtual" and self.clock is not None:
+            reader = participant(self.clock, can_reader_name(config.channel), progress_ns=UNBOUNDED_NS, reuse=True)
         if self._host is not None and config.interface == "virtual":
             config = self._host.can_config(config)
-        return _LinkedBus(open_bus(config), self.can_link)
+        return _LinkedBus(open_bus(config), self.can_link, reader)
 
     # --- the simulated DAQ -----------------------------------------------------------------------
 
@@ -568,6 +610,12 @@ class SimWorld:
         self._stop_truth()
         if self.clock is not None and self._truth_source is not None:
             self._write_truth_until(self.clock.now_ns())
+            stats = self.governor_stats()
+            if stats is not None:
+                self._truth_source.event(
+                    EventKind.INFO, "simulation: " + self.governor_summary(), simulation=True,
+                    governor=stats.as_dict(), speed=self.speed, wall_ns=self.clock.wall_ns(),
+                )
             for timing in self.daq_timing():
                 self._truth_source.event(
                     EventKind.INFO,
@@ -592,16 +640,18 @@ class SimWorld:
         assert clock is not None
         block = max(1, round(1.0 / self.truth.dt))  # one second of truth per message
         n = len(self.truth)
-        while not self._truth_stop.is_set():
-            with self._truth_lock:
-                nxt = self._truth_next
-            if nxt >= n:
-                return
-            end = min(n, nxt + block)
-            due = self.timebase.truth_start_ns + round(float(self.truth.t[end - 1]) * NS_PER_S)
-            if not clock.sleep_until_ns(due, self._truth_stop):
-                return
-            self._write_truth_until(clock.now_ns())
+        with participant(clock, "truth") as me:
+            while not self._truth_stop.is_set():
+                with self._truth_lock:
+                    nxt = self._truth_next
+                if nxt >= n:
+                    return
+                end = min(n, nxt + block)
+                due = self.timebase.truth_start_ns + round(float(self.truth.t[end - 1]) * NS_PER_S)
+                me.at(due)
+                if not clock.sleep_until_ns(due, self._truth_stop):
+                    return
+                self._write_truth_until(clock.now_ns())
 
     def _write_truth_until(self, now_ns: int) -> None:
         """Put every truth block whose first sample is at or before clock time ``now_ns``."""
@@ -809,6 +859,11 @@ def _device_host_main(conn: Connection) -> None:
             conn.close()
 
 
+def can_reader_name(channel: str) -> str:
+    """The governed clock's name for the reader of the simulated ECU's CAN channel ``channel``."""
+    return f"canrx:{channel}"
+
+
 def true_antenna_lever_arms(antennas: AntennaConfig, mount_offset_deg: float) -> dict[str, tuple[float, float, float]]:
     """True antenna positions (x, y, z) m from the CG: the configured lever arms with the baseline
     turned by ``mount_offset_deg`` (``simulation.true_mount_offset_deg``) about antenna A.
@@ -855,6 +910,9 @@ class SimRecording:
     completed: bool
     """The drive ran to its end (False: stopped early)."""
     wall_s: float
+    governor: GovernorStats | None = None
+    """How much the governed clock slowed (None: not governed)."""
+    governor_text: str = ""
 
 
 def record_simulated(
@@ -874,21 +932,24 @@ def record_simulated(
     on_started: Callable[[RecordSession], None] | None = None,
     truth: GroundTruth | None = None,
     device_process: bool = False,
+    governed: bool | None = None,
 ) -> SimRecording:
     """Run a :class:`SimWorld` and record it with a :class:`~rig.session.RecordSession` until the
     drive ends (or ``stop`` is set, or the recording fails); return what was recorded.
 
     ``actions`` run at their truth times on this thread; ``tick`` every 0.25 s of real time (a
-    dashboard); ``on_started`` once the session records. ``device_process``: see :class:`SimWorld`.
+    dashboard); ``on_started`` once the session records. ``device_process``, ``governed``: see
+    :class:`SimWorld`; the governed clock is released when the drive ends, before the readers close.
     """
     t0 = time.monotonic()
     stop = stop or threading.Event()
     world = SimWorld(cfg, drive=drive, speed=speed, lead_s=lead_s, rtk=rtk, truth=truth,
-                     device_process=device_process)
+                     device_process=device_process, governed=governed)
     world.start()
     completed = False
     try:
         assert world.clock is not None
+        clock = world.clock
         session = RecordSession(
             cfg, out_dir=out_dir, name=name, clock=world.clock, ports=world, daq_factory=world.daq_session,
             can_factory=world.can_bus, plugins=[world], config_path=config_path, options=options,
@@ -901,7 +962,6 @@ def record_simulated(
             if on_started is not None:
                 on_started(session)
             pending = sorted(actions, key=lambda a: a[0])
-            clock = world.clock
             while not (stop.is_set() or session.failed.is_set()):
                 now = clock.now_ns()
                 while pending and now >= world.timebase.truth_start_ns + round(pending[0][0] * NS_PER_S):
@@ -916,10 +976,13 @@ def record_simulated(
                     due = min(due, world.timebase.truth_start_ns + round(pending[0][0] * NS_PER_S))
                 stop.wait(min(0.25, max(0.0, (due - now) / world.speed / NS_PER_S)))
         finally:
+            if clock.governor is not None:
+                clock.governor.release()  # the readers close now: nothing left to wait for
             summary = session.stop()
     finally:
+        governor_text = world.governor_summary() if world.clock is not None else ""
         world.stop()
-    return SimRecording(summary, world, completed, time.monotonic() - t0)
+    return SimRecording(summary, world, completed, time.monotonic() - t0, world.governor_stats(), governor_text)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -72,7 +72,7 @@ from drivers.daq.base import DaqBackend, DaqChannelConfig, LostSamples
 from drivers.optical import WHEEL_IDS, OpticalRole, OpticalSensorSpec, SensorKind
 from sim_devices.vehicle.truth import GroundTruth
 from vsccore.angles import sideslip_from_velocity, transfer_velocity
-from vsccore.clock import Clock
+from vsccore.clock import UNBOUNDED_NS, Clock, Participant, participant
 from vsccore.errors import ConfigError, DeviceError, DeviceTimeoutError, SimulationError
 
 if TYPE_CHECKING:  # the GNSS simulator's time base; duck-typed at run time (see SyncPulseOutput.from_gps)
@@ -499,6 +499,7 @@ class SimDaqBackend(DaqBackend):
         self._t_start_s = 0.0
         self._next = 0
         self._pending_lost: LostSamples | None = None
+        self._reader: Participant | None = None
 
     # -- wiring and timing -----------------------------------------------------------------------
 
@@ -571,6 +572,9 @@ class SimDaqBackend(DaqBackend):
         if not self.link.connected:
             raise DeviceError(f"DAQ {self.device}: device not found (unplugged)")
         self._t_start_s = (self.clock.now_ns() - self.truth_start_ns) / 1e9
+        if self._reader is None:
+            # on a governed clock simulated time waits for whoever reads this DAQ
+            self._reader = participant(self.clock, f"daq:{self.device}", progress_ns=UNBOUNDED_NS, reuse=True)
         self._next = 0
         self._pending_lost = None
         self._renderer = _Renderer(self, self._t_start_s, rate_hz)
@@ -599,11 +603,16 @@ class SimDaqBackend(DaqBackend):
             if not self.link.connected:
                 raise DeviceError(f"DAQ {self.device}: device disappeared (unplugged)")
             raise DeviceTimeoutError(f"DAQ {self.device}: {n_samples} samples not acquired within {timeout_s} s")
+        reader = self._reader
+        if reader is not None:
+            reader.at(ready_ns)
         if not self.clock.sleep_until_ns(ready_ns, self.link.unplugged_event):
             raise DeviceError(f"DAQ {self.device}: device disappeared (unplugged)")
         first = self._next
         data = self._renderer.render(first, n_samples)
         self._next += n_samples
+        if reader is not None:  # the reader owes the next block once it is complete
+            reader.at(self._sample_clock_ns(self._next + n_samples - 1))
         lost, self._pending_lost = self._pending_lost, None
         return first, data, lost
 
@@ -614,6 +623,8 @@ class SimDaqBackend(DaqBackend):
 
     def _stop(self) -> None:
         self._renderer = None
+        if self._reader is not None:
+            self._reader.idle()
 
     # -- offline -------------------------------------------------------------------------------
 

@@ -38,6 +38,7 @@ import importlib.resources
 import logging
 import math
 import threading
+from collections import deque
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,7 +55,7 @@ from drivers.can.dbc import load_dbc
 from drivers.can.vector_encode import MessageEncoder, SignalLayout
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from sim_devices.vehicle.truth import GroundTruth
-from vsccore.clock import Clock
+from vsccore.clock import UNBOUNDED_NS, Clock, Participant, participant
 from vsccore.errors import EncodeError, SimulationError
 
 __all__ = [
@@ -821,6 +822,11 @@ class VscEcu:
     ``max_lag_s`` late when their turn comes are skipped, as a real ECU that was already running
     would not have them queued. The bus is not closed here: it belongs to the caller.
 
+    On a governed clock (:class:`~vsccore.clock.ClockGovernor`) the ECU is a participant called
+    ``name``: simulated time waits for it, and, when ``reader`` names the participant that reads the
+    bus (publishing the stamp of each frame it takes), for that reader too, so a starved reader
+    holds the clock instead of receiving its frames late.
+
     The constructor computes the whole drive (:func:`simulate_ecu`), which takes a while for long
     drives; pass ``outputs`` computed beforehand (with the same ``config``) when ``t0_ns`` is close.
     """
@@ -836,8 +842,12 @@ class VscEcu:
         db: Database | None = None,
         max_lag_s: float = 0.5,
         outputs: EcuOutputs | None = None,
+        reader: str | None = None,
+        name: str = "ecu",
     ) -> None:
         self.config = config or VscEcuConfig()
+        self._reader = reader
+        self._name = name
         self._db = db or load_dbc(vsc_sim_dbc_path())
         self.truth = truth
         self.outputs = outputs if outputs is not None else simulate_ecu(truth, self.config, self._db)
@@ -893,20 +903,49 @@ class VscEcu:
         """
         table = self._table
         clock = self._clock
-        stop = self._stop
         send = self._bus.send
         max_lag = self._max_lag_ns
         due = (self._t0_ns + np.round(table.t * 1e9).astype(np.int64)).tolist()
-        for due_ns, frame_id, data in zip(due, table.frame_id.tolist(), table.payload, strict=True):
-            if not clock.sleep_until_ns(due_ns, stop):
-                return
-            if clock.now_ns() - due_ns > max_lag:
-                self.frames_skipped += 1
-                continue
-            send(_SentFrame(timestamp=due_ns / 1e9, arbitration_id=frame_id, is_extended_id=False, data=data,
-                            dlc=len(data)))
-            self.frames_sent += 1
+        sent: deque[int] = deque()
+        with participant(clock, self._name, progress_ns=due[0] if due else UNBOUNDED_NS) as me:
+            track = me.governed and self._reader is not None
+            for due_ns, frame_id, data in zip(due, table.frame_id.tolist(), table.payload, strict=True):
+                if not self._wait(due_ns, me, sent):
+                    return
+                if clock.now_ns() - due_ns > max_lag:
+                    self.frames_skipped += 1
+                    continue
+                send(_SentFrame(timestamp=due_ns / 1e9, arbitration_id=frame_id, is_extended_id=False, data=data,
+                                dlc=len(data)))
+                self.frames_sent += 1
+                if track:
+                    sent.append(due_ns)
         self.finished.set()
+
+    _STAMP_TOLERANCE_NS = 2_000
+    """A reader's stamp comes back through float seconds (and socketcand's µs): frames this close count as read."""
+
+    def _wait(self, due_ns: int, me: Participant, sent: deque[int]) -> bool:
+        """Wait until ``due_ns``, publishing how far the ECU (and its reader) got; False when stopped."""
+        clock, stop = self._clock, self._stop
+        while True:
+            oldest = None
+            if sent and self._reader is not None:
+                taken = me.peer_value(self._reader)
+                if taken is None:  # nobody reads the bus (yet): nothing to wait for
+                    sent.clear()
+                else:
+                    while sent and sent[0] <= taken + self._STAMP_TOLERANCE_NS:
+                        sent.popleft()
+                    oldest = sent[0] if sent else None
+            me.at(due_ns if oldest is None else min(due_ns, oldest))
+            if oldest is None:
+                return clock.sleep_until_ns(due_ns, stop)
+            if clock.now_ns() >= due_ns:
+                return not stop.is_set()
+            # frames the reader has not taken yet: look again within a millisecond of wall time
+            if stop.wait(0.001):
+                return False
 
 
 class SimulatedVscBus:

@@ -6,9 +6,23 @@ faster than real time and tests never depend on the machine's wall clock.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import logging
+import mmap
+import os
+import tempfile
 import threading
 import time
-from typing import Protocol
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+log = logging.getLogger(__name__)
 
 
 class Clock(Protocol):
@@ -43,28 +57,402 @@ class ScaledClock:
     """A clock that runs ``speed`` times faster than the wall clock from a chosen start time.
 
     Shared by simulated devices and the recorder in a fast simulated session, so host receive
-    times and device times stay consistent while the session takes less wall time.
+    times and device times stay consistent while the session takes less wall time. It pickles to
+    another process as the same clock (CLOCK_MONOTONIC is system-wide).
+
+    With a ``governor`` (:class:`ClockGovernor`) the clock is *governed*: simulated time never runs
+    more than the governor's budget ahead of the slowest :class:`Participant`, so a busy host makes
+    the session take longer instead of making every device and reader late in simulated time.
+    Without one it runs freely and the host's scheduling delays show, ``speed`` times magnified.
     """
 
-    def __init__(self, start_ns: int, speed: float = 1.0) -> None:
+    def __init__(self, start_ns: int, speed: float = 1.0, governor: ClockGovernor | None = None) -> None:
         if speed <= 0:
             raise ValueError(f"clock speed must be > 0, got {speed}")
         self._start_ns = start_ns
         self._speed = speed
         self._mono0 = time.monotonic_ns()
+        self.governor = governor
+        self._last = start_ns
+        self._last_lock = threading.Lock()
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"start_ns": self._start_ns, "speed": self._speed, "mono0": self._mono0, "governor": self.governor}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self._start_ns = state["start_ns"]
+        self._speed = state["speed"]
+        self._mono0 = state["mono0"]
+        self.governor = state["governor"]
+        self._last = self._start_ns
+        self._last_lock = threading.Lock()
 
     @property
     def speed(self) -> float:
         return self._speed
 
+    @property
+    def governed(self) -> bool:
+        return self.governor is not None
+
+    def wall_ns(self) -> int:
+        """Wall time (ns) since this clock started."""
+        return time.monotonic_ns() - self._mono0
+
     def now_ns(self) -> int:
-        return self._start_ns + int((time.monotonic_ns() - self._mono0) * self._speed)
+        gov = self.governor
+        if gov is not None and gov.enabled:
+            return gov.now_ns(self._start_ns, self._speed, self._mono0)
+        paused = gov.paused_ns() if gov is not None else 0
+        t = self._start_ns + int((time.monotonic_ns() - self._mono0 - paused) * self._speed)
+        if gov is None:
+            return t
+        with self._last_lock:  # released governor: never below what the governed clock handed out
+            t = max(t, self._last, gov.high_ns())
+            self._last = t
+        return t
 
     def sleep_until_ns(self, t_ns: int, stop: threading.Event | None = None) -> bool:
-        delay = (t_ns - self.now_ns()) / self._speed / 1e9
-        if delay <= 0:
-            return not (stop is not None and stop.is_set())
-        if stop is None:
-            time.sleep(delay)
-            return True
-        return not stop.wait(delay)
+        while True:
+            delay = (t_ns - self.now_ns()) / self._speed / 1e9
+            if delay <= 0:
+                return not (stop is not None and stop.is_set())
+            if self.governor is not None:
+                # a paused clock reaches t later than the wall clock says: look again soon
+                delay = max(min(delay, 0.02), 0.0005) if self.governor.paused_now() else delay
+            if stop is None:
+                time.sleep(delay)
+            elif stop.wait(delay):
+                return False
+            if self.governor is None:
+                return not (stop is not None and stop.is_set())
+
+
+# ---------------------------------------------------------------------------------------------
+# The governed scaled clock: simulated time that waits for whoever fell behind
+# ---------------------------------------------------------------------------------------------
+
+UNBOUNDED_NS = (1 << 63) - 1
+"""Progress of a participant that holds nothing back (idle, finished)."""
+
+_HDR = 16
+"""int64 words of the shared header (see :class:`ClockGovernor`)."""
+_SLOT = 8
+"""int64 words per participant slot: progress, ignored value, blamed wall ns, a free value, then the name."""
+_MAX_SLOTS = 64
+_NAME_BYTES = 32
+_MAGIC = 0x56534347  # "VSCG"
+(_H_MAGIC, _H_SLOTS, _H_PAUSED, _H_HIGH, _H_CLAMP_SINCE, _H_OFF, _H_PAUSES, _H_IGNORED) = range(8)
+
+
+@dataclass(frozen=True, slots=True)
+class GovernorStats:
+    """How much a governed clock had to hold simulated time back."""
+
+    budget_ns: int
+    paused_wall_ns: int
+    """Wall time (ns) during which simulated time stood still waiting for a participant."""
+    pauses: int
+    """Number of times the clock started holding back."""
+    ignored: int
+    """Participants released because they held the clock longer than the stall limit."""
+    blamed_wall_ns: dict[str, int]
+    """Paused wall time per participant that was the furthest behind."""
+
+    def effective_speed(self, speed: float, wall_ns: int) -> float:
+        """The speed actually achieved over ``wall_ns`` of wall time at nominal ``speed``."""
+        if wall_ns <= 0:
+            return speed
+        return speed * max(0, wall_ns - self.paused_wall_ns) / wall_ns
+
+    def as_dict(self) -> dict[str, object]:
+        return {"budget_ns": self.budget_ns, "paused_wall_ns": self.paused_wall_ns, "pauses": self.pauses,
+                "ignored": self.ignored, "blamed_wall_ns": dict(self.blamed_wall_ns)}
+
+
+class ClockGovernor:
+    """State shared by every copy of a governed :class:`ScaledClock`, in every process.
+
+    A small file in shared memory (``/dev/shm`` where it exists), mapped by each copy and locked with
+    ``flock`` (plus a thread lock, as ``flock`` does not exclude threads sharing a descriptor). It
+    holds the wall time the clock has spent paused, the highest time handed out (so the clock never
+    runs backwards, in any process) and one slot per *participant*: a device or reader that
+    publishes its *progress*, the simulated time up to which it has done its work. Simulated time
+    never runs more than ``budget_ns`` past the smallest progress: when it would, the clock stands
+    still (the paused wall time grows) until that participant catches up.
+
+    A participant that holds the clock longer than ``stall_limit_s`` of wall time (a reader that
+    went away) is released with a log warning, until it publishes a new progress.
+    """
+
+    def __init__(self, path: str, budget_ns: int, stall_limit_s: float, *, create: bool) -> None:
+        if budget_ns <= 0:
+            raise ValueError(f"clock governor budget must be > 0 ns, got {budget_ns}")
+        self.path = path
+        self.budget_ns = int(budget_ns)
+        self.stall_limit_ns = int(stall_limit_s * 1e9)
+        self._owner = create
+        size = (_HDR + _MAX_SLOTS * _SLOT) * 8
+        flags = os.O_RDWR | (os.O_CREAT | os.O_EXCL if create else 0)
+        self._fd = os.open(path, flags, 0o600)
+        try:
+            if create:
+                os.ftruncate(self._fd, size)
+            self._mm = mmap.mmap(self._fd, size)
+        except BaseException:
+            os.close(self._fd)
+            raise
+        self._w = np.frombuffer(self._mm, dtype=np.int64)
+        if create:
+            self._w[_H_MAGIC] = _MAGIC
+        elif int(self._w[_H_MAGIC]) != _MAGIC:
+            raise ValueError(f"clock governor {path}: not a governor state file")
+        self._tlock = threading.Lock()
+        self._final = (0, 0)
+        self._stats: GovernorStats | None = None
+
+    @classmethod
+    def create(cls, budget_ns: int, stall_limit_s: float = 3.0) -> ClockGovernor:
+        """A new shared state (removed again by :meth:`close` of this copy)."""
+        folder = "/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir()
+        path = os.path.join(folder, f"vsc-clock-{os.getpid()}-{uuid.uuid4().hex[:12]}")
+        return cls(path, budget_ns, stall_limit_s, create=True)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (_attach_governor, (self.path, self.budget_ns, self.stall_limit_ns / 1e9))
+
+    def close(self) -> None:
+        """Unmap (and, for the copy that created it, remove) the shared state."""
+        with self._tlock:
+            if self._fd < 0:
+                return
+            self._stats = self.stats()
+            self._final = (int(self._w[_H_PAUSED]), int(self._w[_H_HIGH]))
+            del self._w
+            with contextlib.suppress(BufferError):
+                self._mm.close()
+            os.close(self._fd)
+            self._fd = -1
+        if self._owner:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self.path)
+
+    @contextlib.contextmanager
+    def _locked(self) -> Iterator[npt.NDArray[np.int64]]:
+        with self._tlock:
+            if self._fd < 0:
+                raise ValueError(f"clock governor {self.path}: closed")
+            fcntl.flock(self._fd, fcntl.LOCK_EX)
+            try:
+                yield self._w
+            finally:
+                fcntl.flock(self._fd, fcntl.LOCK_UN)
+
+    # --- participants ---------------------------------------------------------------------------
+
+    def register(self, name: str, progress_ns: int, *, reuse: bool = False) -> int:
+        """A new slot for participant ``name`` starting at ``progress_ns`` (``reuse``: the slot of that
+        name if there is one); its index."""
+        raw = name.encode("utf-8")[:_NAME_BYTES].ljust(_NAME_BYTES, b"\0")
+        with self._locked() as w:
+            n = int(w[_H_SLOTS])
+            if reuse and name in self.names():
+                k = self.names().index(name)
+                w[_HDR + k * _SLOT] = progress_ns
+                return k
+            if n >= _MAX_SLOTS:
+                raise ValueError(f"clock governor: no slot left for participant {name!r} ({_MAX_SLOTS} in use)")
+            base = _HDR + n * _SLOT
+            w[base] = progress_ns
+            w[base + 1] = -1
+            w[base + 2] = 0
+            w[base + 3] = 0
+            w[base + 4: base + _SLOT] = np.frombuffer(raw, dtype=np.int64)
+            w[_H_SLOTS] = n + 1
+            return n
+
+    def publish(self, slot: int, progress_ns: int) -> None:
+        """Set a slot's progress (one writer per slot: an aligned 8-byte store needs no lock)."""
+        if self._fd >= 0:
+            self._w[_HDR + slot * _SLOT] = progress_ns
+
+    def set_value(self, slot: int, value: int) -> None:
+        """Set a slot's free value (a reader's last consumed stamp, for its producer to see)."""
+        if self._fd >= 0:
+            self._w[_HDR + slot * _SLOT + 3] = value
+
+    def find(self, name: str) -> int | None:
+        """The slot index of participant ``name`` (None: not registered)."""
+        if self._fd < 0:
+            return None
+        names = self.names()
+        return names.index(name) if name in names else None
+
+    def value_at(self, slot: int) -> int:
+        """The free value of slot ``slot``."""
+        return int(self._w[_HDR + slot * _SLOT + 3]) if self._fd >= 0 else 0
+
+    def names(self) -> list[str]:
+        n = int(self._w[_H_SLOTS])
+        out = []
+        for i in range(n):
+            base = _HDR + i * _SLOT
+            out.append(self._w[base + 4: base + _SLOT].tobytes().rstrip(b"\0").decode("utf-8", "replace"))
+        return out
+
+    def progress(self) -> dict[str, int]:
+        """Every participant's current progress (ns of simulated time; UNBOUNDED_NS when idle)."""
+        n = int(self._w[_H_SLOTS])
+        return {name: int(self._w[_HDR + i * _SLOT]) for i, name in enumerate(self.names()[:n])}
+
+    # --- the clock --------------------------------------------------------------------------------
+
+    @property
+    def enabled(self) -> bool:
+        return self._fd >= 0 and int(self._w[_H_OFF]) == 0
+
+    def release(self) -> None:
+        """Stop governing: from now on the clock runs freely (the end of a recording)."""
+        with self._locked() as w:
+            w[_H_OFF] = 1
+
+    def now_ns(self, start_ns: int, speed: float, mono0: int) -> int:
+        """Current governed time (see the class docstring)."""
+        with self._locked() as w:
+            mono = time.monotonic_ns()
+            free = start_ns + int((mono - mono0 - int(w[_H_PAUSED])) * speed)
+            high = int(w[_H_HIGH])
+            n = int(w[_H_SLOTS])
+            limit = UNBOUNDED_NS
+            who = -1
+            if n and int(w[_H_OFF]) == 0:
+                slots = w[_HDR: _HDR + n * _SLOT].reshape(n, _SLOT)
+                prog = slots[:, 0]
+                live = prog != slots[:, 1]
+                if live.any():
+                    idx = np.flatnonzero(live)
+                    k = int(idx[np.argmin(prog[idx])])
+                    if int(prog[k]) < UNBOUNDED_NS - self.budget_ns:
+                        limit, who = int(prog[k]) + self.budget_ns, k
+            t = free
+            if free > limit:
+                t = max(limit, high)
+                paused = int((free - t) / speed)
+                if paused > 0:
+                    w[_H_PAUSED] += paused
+                    w[_HDR + who * _SLOT + 2] += paused
+                    since = int(w[_H_CLAMP_SINCE])
+                    if since == 0:
+                        w[_H_CLAMP_SINCE] = mono
+                        w[_H_PAUSES] += 1
+                    elif mono - since > self.stall_limit_ns:
+                        base = _HDR + who * _SLOT
+                        w[base + 1] = w[base]
+                        w[_H_IGNORED] += 1
+                        w[_H_CLAMP_SINCE] = 0
+                        log.warning("governed clock: %s held simulated time for %.1f s of wall time; released",
+                                    self.names()[who], (mono - since) / 1e9)
+            else:
+                w[_H_CLAMP_SINCE] = 0
+            t = max(t, high)
+            w[_H_HIGH] = t
+            return t
+
+    def high_ns(self) -> int:
+        """The highest time the governed clock has handed out."""
+        if self._fd >= 0:
+            self._final = (int(self._w[_H_PAUSED]), int(self._w[_H_HIGH]))
+        return self._final[1]
+
+    def paused_ns(self) -> int:
+        """Wall time (ns) the clock has stood still so far."""
+        if self._fd >= 0:
+            self._final = (int(self._w[_H_PAUSED]), int(self._w[_H_HIGH]))
+        return self._final[0]
+
+    def paused_now(self) -> bool:
+        """True while the clock is standing still for a participant."""
+        return self._fd >= 0 and int(self._w[_H_CLAMP_SINCE]) != 0
+
+    def stats(self) -> GovernorStats:
+        """What the clock has held back so far (kept after :meth:`close`)."""
+        if self._fd < 0:
+            if self._stats is None:
+                raise ValueError(f"clock governor {self.path}: closed before any statistics")
+            return self._stats
+        names = self.names()
+        return GovernorStats(
+            budget_ns=self.budget_ns,
+            paused_wall_ns=int(self._w[_H_PAUSED]),
+            pauses=int(self._w[_H_PAUSES]),
+            ignored=int(self._w[_H_IGNORED]),
+            blamed_wall_ns={nm: int(self._w[_HDR + i * _SLOT + 2]) for i, nm in enumerate(names)
+                            if int(self._w[_HDR + i * _SLOT + 2]) > 0},
+        )
+
+
+def _attach_governor(path: str, budget_ns: int, stall_limit_s: float) -> ClockGovernor:
+    return ClockGovernor(path, budget_ns, stall_limit_s, create=False)
+
+
+class Participant:
+    """A device or reader that a governed clock waits for (see :class:`ClockGovernor`).
+
+    :meth:`at` publishes the simulated time up to which it has done its work; :meth:`idle` says it
+    holds nothing back; :meth:`close` (or leaving the ``with`` block) ends its part. On a clock
+    that is not governed the calls change nothing.
+    """
+
+    def __init__(self, governor: ClockGovernor | None, name: str, progress_ns: int, *, reuse: bool = False) -> None:
+        self.name = name
+        self._gov = governor
+        self._slot = governor.register(name, progress_ns, reuse=reuse) if governor is not None else -1
+        self._peers: dict[str, int] = {}
+        self.progress_ns = progress_ns
+
+    @property
+    def governed(self) -> bool:
+        return self._gov is not None
+
+    def at(self, progress_ns: int) -> None:
+        if progress_ns != self.progress_ns:
+            self.progress_ns = progress_ns
+            if self._gov is not None:
+                self._gov.publish(self._slot, progress_ns)
+
+    def idle(self) -> None:
+        self.at(UNBOUNDED_NS)
+
+    def set_value(self, value: int) -> None:
+        """Publish a free value for another participant (e.g. a reader's last consumed stamp)."""
+        if self._gov is not None:
+            self._gov.set_value(self._slot, value)
+
+    def peer_value(self, name: str) -> int | None:
+        """The free value published by participant ``name`` (None: it has not registered yet)."""
+        if self._gov is None:
+            return None
+        slot = self._peers.get(name)
+        if slot is None:
+            slot = self._gov.find(name)
+            if slot is None:
+                return None
+            self._peers[name] = slot
+        return self._gov.value_at(slot)
+
+    def close(self) -> None:
+        self.idle()
+
+    def __enter__(self) -> Participant:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def participant(clock: Clock, name: str, *, progress_ns: int | None = None, reuse: bool = False) -> Participant:
+    """A :class:`Participant` of ``clock`` (one that changes nothing unless the clock is governed),
+    starting at ``progress_ns`` (default: the clock's current time)."""
+    gov = getattr(clock, "governor", None)
+    start = clock.now_ns() if progress_ns is None else progress_ns
+    return Participant(gov if isinstance(gov, ClockGovernor) else None, name, start, reuse=reuse)

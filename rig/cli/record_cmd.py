@@ -175,6 +175,7 @@ def sim_record(
         f"{result.wall_s:.1f} s{'' if result.completed else ' (stopped early)'}",
         err=True,
     )
+    typer.echo(result.governor_text, err=True)
     _report(result.summary, got.get("signal"))
 
 

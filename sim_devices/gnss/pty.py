@@ -18,6 +18,7 @@ import errno
 import fcntl
 import logging
 import os
+import sys
 import termios
 import tty
 from pathlib import Path
@@ -113,6 +114,17 @@ class PtyPort:
         self.bytes_written += n
         self.bytes_dropped += len(data) - n
         return n
+
+    def unread(self) -> int:
+        """Bytes written here that the other side has not read yet (0 when unplugged)."""
+        if self._slave is None:
+            return 0
+        buf = bytearray(4)
+        try:
+            fcntl.ioctl(self._slave, termios.FIONREAD, buf)
+        except OSError:
+            return 0
+        return int.from_bytes(buf, sys.byteorder)
 
     def read(self, n: int = 65536) -> bytes:
         """Bytes the other side wrote, without blocking (b"" when none)."""

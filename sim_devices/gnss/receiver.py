@@ -89,7 +89,7 @@ from sim_devices.gnss.error_model import GnssErrorModel, GnssErrorParams, RtkSta
 from sim_devices.gnss.pty import PtyPort
 from sim_devices.gnss.solution import Solution
 from sim_devices.gnss.timebase import SimTimeBase
-from vsccore.clock import Clock, SystemClock
+from vsccore.clock import UNBOUNDED_NS, Clock, SystemClock, participant
 from vsccore.errors import DeviceError, DeviceTimeoutError, SimulationError
 from vsccore.gpstime import NS_PER_S, NS_PER_WEEK, gps_ns_to_unix_ns
 
@@ -137,6 +137,11 @@ class _PortState:
     last_cr: bool = False
     framer: Framer | None = None
     bytes_overrun: int = 0
+    written: deque[tuple[int, int]] = field(default_factory=deque)
+    """(bytes written on the pty after a write, clock time the write completed): what a reader may still owe."""
+    consumed: int = 0
+    read_seen: bool = False
+    """Someone reads this port (only then does a governed clock wait for its reader)."""
 
 
 class SimReceiver(abc.ABC):
@@ -213,6 +218,7 @@ class SimReceiver(abc.ABC):
         self.link_dir = Path(tempfile.mkdtemp(prefix=f"vsc-sim-{name}-")) if link_dir is None else Path(link_dir)
         self.main_port = port_name
         self._ports: dict[str, _PortState] = {}
+        self._governed = False
         for pname in (port_name, *extra_ports):
             suffix = "" if pname == port_name else f"-{pname.lower()}"
             pty = PtyPort(pname, self.link_dir / f"{name}{suffix}")
@@ -766,13 +772,37 @@ class SimReceiver(abc.ABC):
                 st.pending_bytes -= len(data)
                 st.free_at_ns = done
                 self._write(st, data)
+                if st.pty is not None and self._governed:
+                    st.written.append((st.pty.bytes_written, done))
+                    if not st.read_seen and len(st.written) > 64:
+                        st.written.popleft()
         return nxt
+
+    def _unread_since(self) -> int | None:
+        """Clock time of the oldest write that a reader of one of the ports has not read yet."""
+        oldest: int | None = None
+        for st in self._ports.values():
+            pty = st.pty
+            if pty is None or not st.written:
+                continue
+            consumed = pty.bytes_written - pty.unread()
+            if consumed > st.consumed:
+                st.consumed = consumed
+                st.read_seen = True
+            written = st.written
+            while written and written[0][0] <= consumed:
+                written.popleft()
+            if written and st.read_seen and (oldest is None or written[0][1] < oldest):
+                oldest = written[0][1]
+        return oldest
 
     # --- thread ------------------------------------------------------------------------------------
 
     def _run(self) -> None:
         speed = float(getattr(self.clock, "speed", 1.0))
         latency_ns = round(self.output_latency_s * NS_PER_S)
+        me = participant(self.clock, f"gnss:{self.name}")
+        self._governed = me.governed
         try:
             while not self._stop.is_set():
                 self._serve_requests()
@@ -785,6 +815,12 @@ class SimReceiver(abc.ABC):
                     c = self.timebase.clock_ns(t_data) + latency_ns
                     wake = c if wake is None else min(wake, c)
                 timeout = 0.1 if wake is None else min(0.1, max(0.0, (wake - self.clock.now_ns()) / speed / NS_PER_S))
+                if self._governed:
+                    # simulated time waits for this receiver's next output and for its readers
+                    unread = self._unread_since()
+                    me.at(min(UNBOUNDED_NS if wake is None else wake, UNBOUNDED_NS if unread is None else unread))
+                    if unread is not None:
+                        timeout = min(timeout, 0.001)
                 fds = [st.pty.master_fd for st in self._ports.values() if st.pty is not None and st.pty.connected]
                 assert self._wake_r is not None
                 readable, _, _ = select.select([self._wake_r, *(fd for fd in fds if fd is not None)], [], [], timeout)
@@ -803,6 +839,7 @@ class SimReceiver(abc.ABC):
             log.exception("sim receiver %s: thread failed", self.name)
             raise
         finally:
+            me.close()
             self._serve_requests()
 
     def _on_input(self, st: _PortState, data: bytes) -> None:

@@ -18,7 +18,7 @@ import bisect
 import math
 from dataclasses import dataclass
 
-from vsccore.clock import ScaledClock
+from vsccore.clock import ClockGovernor, ScaledClock
 from vsccore.errors import SimulationError
 from vsccore.gpstime import NS_PER_S, gps_ns_to_unix_ns, gps_to_ns, unix_ns_to_gps_ns
 
@@ -49,9 +49,10 @@ class SimTimeBase:
         unix = gps_ns_to_unix_ns(gps_to_ns(week, seconds), leap_seconds)
         return cls(unix + host_clock_offset_ns, leap_seconds, host_clock_offset_ns)
 
-    def make_clock(self, speed: float = 1.0, lead_s: float = 0.0) -> ScaledClock:
-        """A :class:`ScaledClock` that reads truth ``t = -lead_s`` now and runs ``speed`` times real time."""
-        return ScaledClock(self.truth_start_ns - round(lead_s * NS_PER_S), speed)
+    def make_clock(self, speed: float = 1.0, lead_s: float = 0.0, governor: ClockGovernor | None = None) -> ScaledClock:
+        """A :class:`ScaledClock` that reads truth ``t = -lead_s`` now and runs ``speed`` times real time
+        (governed by ``governor`` when given)."""
+        return ScaledClock(self.truth_start_ns - round(lead_s * NS_PER_S), speed, governor=governor)
 
     @property
     def truth_start_gps_ns(self) -> int:
