@@ -27,6 +27,7 @@ from pydantic import (
     ConfigDict,
     Field,
     SecretStr,
+    SecretStr,
     ValidationError,
     field_validator,
     model_validator,
@@ -330,6 +331,19 @@ class RelayConfig(_Model):
     ntrip_user_env: str = "VSC_RIG_NTRIP_USER"
     ntrip_password_env: str = "VSC_RIG_NTRIP_PASSWORD"
     gga_period_s: Positive = 10.0
+    source_password: SecretStr | None = Field(default=None, exclude=True, repr=False)
+    """A password given in the ``source`` URL, split off on reading (``source`` keeps ``***``); never dumped."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _split_source_password(cls, data: Any) -> Any:
+        from drivers.relay.endpoints import redact_endpoint
+
+        if isinstance(data, Mapping) and isinstance(data.get("source"), str):
+            redacted = redact_endpoint(data["source"])
+            if redacted.password is not None:
+                data = {**data, "source": redacted.text, "source_password": redacted.password.reveal()}
+        return data
     source_password: SecretStr | None = Field(default=None, exclude=True, repr=False)
     """A password given in the ``source`` URL, split off on reading (``source`` keeps ``***``); never dumped."""
 

@@ -160,6 +160,19 @@ def _partial(path: Path) -> Path:
     return path.with_name(f".{path.name}.partial")
 
 
+def rtklib_format(path: Path | str, sniff_bytes: int = 1 << 18) -> str:
+    """RTKLIB ``convbin -r`` format of an exported raw file, from its content: ``rtcm3`` when RTCM 3
+    frames outnumber NovAtel ones (a base receiver's correction output), else ``nov``."""
+    from drivers.novatel import FrameKind, Framer
+
+    with open(path, "rb") as f:
+        head = f.read(sniff_bytes)
+    framer = Framer(decode_logs=False, decode_nmea=False, decode_rtcm=False)
+    frames = framer.feed(head)
+    rtcm = sum(1 for fr in frames if fr.kind is FrameKind.RTCM3)
+    return "rtcm3" if rtcm > len(frames) - rtcm else "nov"
+
+
 def export_raw_gnss(path: Path | str, out_dir: Path | str, *, overwrite: bool = False) -> ExportReport:
     """Write every receiver's raw byte stream and the relayed corrections of a session into ``out_dir``.
 

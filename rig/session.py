@@ -34,6 +34,7 @@ live in :mod:`rig.session_devices`.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import io
 import logging
@@ -55,6 +56,7 @@ import rig.topics as T  # noqa: N812 - topics used as a namespace
 from drivers.can.bus import CanBusConfig
 from drivers.daq import DaqBlock, DaqEvent, DaqSession
 from drivers.novatel import BestPos
+from drivers.relay.endpoints import mask_credentials
 from rig.config import DaqConfig, ReceiverConfig, SessionConfig
 from rig.recorder import Attachment, Recorder, RecorderOptions, RecordingSummary, Source, session_metadata
 from rig.session_devices import (
@@ -389,6 +391,10 @@ class RecordSession:
                 out.append(Attachment(f"{cc.name}.roles.toml", "application/toml", buf.getvalue()))
         if self.config_path is not None:
             att = Attachment.from_file(self.config_path)
+            # the file as written, but for passwords in endpoint URLs (relay.source)
+            text = att.data.decode("utf-8", "replace")
+            if mask_credentials(text) != text:
+                att = dataclasses.replace(att, data=mask_credentials(text).encode())
             if att.name not in names:
                 out.append(att)
         return out

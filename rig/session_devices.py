@@ -55,6 +55,7 @@ from drivers.novatel.receiver import (
 from drivers.optical import OpticalSensorSpec, convert_block
 from drivers.relay import CallbackSink, CorrectionFrame, PushSource, Relay, Sink, open_sink, open_source
 from drivers.relay import Source as RelaySource
+from drivers.relay.endpoints import RedactedEndpoint, Secret
 from rig.config import CanConfig, DaqConfig, ReceiverConfig, SessionConfig
 from rig.recorder import Source
 from rig.status import DeviceState
@@ -347,8 +348,10 @@ class RelayDevice(Device):
             rx.push = push
             source = push
         else:
+            password = None if cfg.source_password is None else Secret(cfg.source_password.get_secret_value())
             source = open_source(
-                cfg.source, env=os.environ, user_env=cfg.ntrip_user_env, password_env=cfg.ntrip_password_env,
+                RedactedEndpoint(cfg.source, password),
+                env=os.environ, user_env=cfg.ntrip_user_env, password_env=cfg.ntrip_password_env,
                 gga=session.gga_position, gga_period_s=cfg.gga_period_s, clock=session.clock,
             )
         sinks: list[Sink] = []
@@ -398,7 +401,7 @@ class RelayDevice(Device):
         )
         if self.relay.error is not None and not self._reported_failure:
             self._reported_failure = True
-            self.session.board.update(self.name, state=DeviceState.LOST)
+            self.session.board.update(self.name, state=DeviceState.LOST, detail=f"FAILED: {self.relay.error}")
             self.event(EventKind.ERROR, f"relay stopped: {self.relay.error}", severity=Severity.ERROR)
 
 

@@ -32,11 +32,13 @@ __all__ = [
     "Endpoint",
     "FileEndpoint",
     "NtripEndpoint",
+    "RedactedEndpoint",
     "Secret",
     "SerialEndpoint",
     "TcpEndpoint",
     "mask_credentials",
     "parse_endpoint",
+    "redact_endpoint",
 ]
 
 DEFAULT_NTRIP_PORT = 2101
@@ -44,7 +46,10 @@ DEFAULT_NTRIP_USER_ENV = "VSC_RIG_NTRIP_USER"
 DEFAULT_NTRIP_PASSWORD_ENV = "VSC_RIG_NTRIP_PASSWORD"
 MASK = "***"
 
-_URL_PASSWORD = re.compile(r"(?P<head>[A-Za-z][A-Za-z0-9+.-]*://[^:/@\s]*:)[^@\s]*@")
+# in free text: the password runs to the last '@' of the URL token
+_URL_PASSWORD = re.compile(r"(?P<head>[A-Za-z][A-Za-z0-9+.-]*://[^:/@\s\"']*:)[^\s\"']*@")
+# one endpoint string: the password runs to its last '@' (it may hold '/', '?', '#', '@' or spaces)
+_ENDPOINT_PASSWORD = re.compile(r"(?P<head>[A-Za-z][A-Za-z0-9+.-]*://[^:/@\s]*:)(?P<password>.*)@(?P<rest>[^@]*)", re.S)
 
 
 def mask_credentials(text: str) -> str:
@@ -81,6 +86,28 @@ class Secret:
 
     def __reduce__(self) -> tuple[object, ...]:
         raise TypeError("Secret values are not pickled")
+
+
+@dataclass(frozen=True, slots=True)
+class RedactedEndpoint:
+    """An endpoint string as it enters the program, split at once into the ``text`` with the URL
+    password replaced by ``***`` (safe for metadata, events, logs, status lines and errors) and the
+    ``password`` (a :class:`Secret`, None when the URL has none). ``str`` is the redacted text."""
+
+    text: str
+    password: Secret | None = field(default=None, repr=False, compare=False)
+
+    def __str__(self) -> str:
+        return self.text
+
+
+def redact_endpoint(text: str) -> RedactedEndpoint:
+    """Split the password out of an endpoint string (``ntrip://user:password@host/MOUNT``)."""
+    m = _ENDPOINT_PASSWORD.fullmatch(text.strip())
+    if m is None:
+        return RedactedEndpoint(text.strip())
+    password = unquote(m.group("password"))
+    return RedactedEndpoint(f"{m.group('head')}{MASK}@{m.group('rest')}", Secret(password) if password else None)
 
 
 @dataclass(frozen=True, slots=True)
@@ -153,7 +180,7 @@ def _split_baud(text: str, what: str) -> tuple[str, int | None]:
 
 
 def parse_endpoint(
-    text: str,
+    text: str | RedactedEndpoint,
     *,
     env: Mapping[str, str] | None = None,
     user_env: str = DEFAULT_NTRIP_USER_ENV,
@@ -164,13 +191,13 @@ def parse_endpoint(
     Raises:
         ConfigError: the text is not a valid endpoint (the message quotes it, password masked).
     """
-    shown = mask_credentials(text.strip())
-    text = text.strip()
+    redacted = text if isinstance(text, RedactedEndpoint) else redact_endpoint(text)
+    text = shown = redacted.text  # from here on, no code sees the password but through the Secret
     if not text:
         raise ConfigError("relay endpoint is empty")
     lower = text.lower()
     if lower.startswith("ntrip://"):
-        return _parse_ntrip(text, shown, os.environ if env is None else env, user_env, password_env)
+        return _parse_ntrip(text, shown, redacted.password, os.environ if env is None else env, user_env, password_env)
     if lower.startswith("tcp://"):
         parts = urlsplit(text)
         try:
@@ -195,17 +222,19 @@ def parse_endpoint(
     return SerialEndpoint(path, baud)
 
 
-def _parse_ntrip(text: str, shown: str, env: Mapping[str, str], user_env: str, password_env: str) -> NtripEndpoint:
-    # urlsplit would choke on passwords with '/', '#' or '?': split the credentials off by hand.
+def _parse_ntrip(
+    text: str, shown: str, url_password: Secret | None, env: Mapping[str, str], user_env: str, password_env: str
+) -> NtripEndpoint:
+    # ``text`` is redacted: a password given in the URL stands there as '***' and comes in ``url_password``.
     rest = text[len("ntrip://") :]
     user: str | None = None
     password: str | None = None
-    at = rest.rfind("@")  # host and mountpoint have no '@'; a password may have '/', '?' or '#'
+    at = rest.rfind("@")
     if at >= 0:
         cred, rest = rest[:at], rest[at + 1 :]
         if ":" in cred:
-            u, p = cred.split(":", 1)
-            user, password = unquote(u), unquote(p)
+            user = unquote(cred.split(":", 1)[0])
+            password = url_password.reveal() if url_password is not None else ""
         else:
             user = unquote(cred)
     parts = urlsplit("ntrip://" + rest)

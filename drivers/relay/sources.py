@@ -36,6 +36,7 @@ from drivers.relay.endpoints import (
     DEFAULT_NTRIP_USER_ENV,
     FileEndpoint,
     NtripEndpoint,
+    RedactedEndpoint,
     SerialEndpoint,
     TcpEndpoint,
     parse_endpoint,
@@ -554,7 +555,7 @@ class PushSource(Source):
 
 
 def open_source(
-    text: str,
+    text: str | RedactedEndpoint,
     *,
     env: Mapping[str, str] | None = None,
     user_env: str = DEFAULT_NTRIP_USER_ENV,

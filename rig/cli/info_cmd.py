@@ -72,16 +72,15 @@ def export(
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace existing output files.")] = False,
 ) -> None:
     """Get data out of a session for post-processing (RTKLIB convbin/rtkpost, NovAtel tools, spreadsheets)."""
-    from rig.export import ExportKind, export_csv, export_raw_gnss
+    from rig.export import ExportKind, export_csv, export_raw_gnss, rtklib_format
 
     if raw_gnss is None and csv_dir is None:
         raise ConfigError("rig export: say what to export: --raw-gnss DIR and/or --csv DIR")
     if raw_gnss is not None:
         report = export_raw_gnss(file, raw_gnss, overwrite=overwrite)
         _print_report(report)
-        gps = [f.path for f in report.files if f.kind is ExportKind.GNSS_RAW]
-        if gps:
-            typer.echo(f"post-process with RTKLIB, e.g.: convbin -r nov {gps[0]}")
+        for path in [f.path for f in report.files if f.kind is ExportKind.GNSS_RAW]:
+            typer.echo(f"post-process with RTKLIB, e.g.: convbin -r {rtklib_format(path)} {path}")
     if csv_dir is not None:
         _print_report(export_csv(file, csv_dir, overwrite=overwrite))
 
