@@ -9,6 +9,21 @@ either embeds the profile as ``[vehicle]``/``[antennas]``/… tables or names a 
 
 Units follow the key names: SI unless the name carries another unit (``_deg``, ``_kmh``,
 ``_bar``). Every problem is reported with its key path and, where possible, the line in the file.
+
+Plausibility bounds, where physics or the hardware gives them (a value outside is a typing or
+unit mistake, never a real set-up):
+
+- mounting offsets (``mount_offset_deg``, ``true_mount_offset_deg``) and optical-sensor zeros
+  within ±10°: the antenna baseline and the sensor are aligned with the car's axis by eye and
+  tape measure to well under a degree; 10° off is a bracket on the wrong way round, and the
+  small-angle calibrations (straight-run mean, circle fit) are not valid that far out;
+- lever arms (``x_m``, ``y_m``, ``z_m`` of antennas and optical sensors, from the CG): within the
+  envelope of a road vehicle that carries this rig, a car or van at most 7 m long, 2.55 m wide
+  (the EU and US width limit) and 3 m tall, with the CG inside it: |x| ≤ 6 m, |y| ≤ 1.5 m
+  (half the width plus a bracket), −1.5 m ≤ z ≤ 3 m (the ground is at −CG height, ≤ 1 m below);
+- receiver baud rates from the set a NovAtel OEM7 port accepts (``SERIALCONFIG``), and ``ONTIME``
+  log periods from the rates the receiver schedules: 50, 20, 10, 5, 4 and 2 Hz, or a whole number
+  of seconds.
 """
 
 from __future__ import annotations
@@ -23,12 +38,13 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Self
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
     SecretStr,
-    SecretStr,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -60,6 +76,39 @@ class _Model(BaseModel):
 
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
+
+MAX_MOUNT_OFFSET_DEG = 10.0
+"""Largest plausible antenna-baseline mounting offset or optical-sensor zero (see the module docstring)."""
+LEVER_ARM_X_M = 6.0
+LEVER_ARM_Y_M = 1.5
+LEVER_ARM_Z_M = (-1.5, 3.0)
+"""Lever-arm bounds from the CG in vehicle axes: a car or van ≤ 7 m long, 2.55 m wide, 3 m tall."""
+NOVATEL_BAUDS = (300, 600, 900, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
+"""Baud rates a NovAtel OEM7 serial port accepts (``SERIALCONFIG``, OEM7 Commands and Logs Reference)."""
+NOVATEL_HIGH_RATE_PERIODS_S = (0.02, 0.05, 0.1, 0.2, 0.25, 0.5)
+"""``ONTIME`` periods below 1 s that a NovAtel receiver schedules (50 Hz needs the receiver's option);
+from 1 s up, any whole number of seconds."""
+
+
+def _within_mount_offset(value: float) -> float:
+    if not abs(value) <= MAX_MOUNT_OFFSET_DEG:  # also rejects NaN
+        raise ValueError(
+            f"{value!r}° is outside ±{MAX_MOUNT_OFFSET_DEG:g}°: a mounting misalignment this large is a "
+            "mounting or unit mistake, not something to calibrate away"
+        )
+    return value
+
+
+def _offsets_within_bounds(values: dict[str, float]) -> dict[str, float]:
+    for name, value in values.items():
+        try:
+            _within_mount_offset(value)
+        except ValueError as exc:
+            raise ValueError(f"{name}: {exc}") from None
+    return values
+
+
+MountOffsetDeg = Annotated[float, AfterValidator(_within_mount_offset)]
 
 
 # --------------------------------------------------------------------------------------------
@@ -119,6 +168,21 @@ class LeverArm(_Model):
     x_m: float
     y_m: float = 0.0
     z_m: float = 0.0
+
+    @field_validator("x_m", "y_m", "z_m")
+    @classmethod
+    def _inside_the_car(cls, value: float, info: ValidationInfo) -> float:
+        low, high = {
+            "x_m": (-LEVER_ARM_X_M, LEVER_ARM_X_M),
+            "y_m": (-LEVER_ARM_Y_M, LEVER_ARM_Y_M),
+            "z_m": LEVER_ARM_Z_M,
+        }[str(info.field_name)]
+        if not low <= value <= high:  # also rejects NaN
+            raise ValueError(
+                f"{value!r} m from the CG is outside the car ({low:g} … {high:g} m; a car or van is at most "
+                "7 m long, 2.55 m wide and 3 m tall)"
+            )
+        return value
 
     @property
     def xy(self) -> tuple[float, float]:
@@ -214,14 +278,16 @@ class ImuCalibrationConfig(_Model):
 class CalibrationConfig(_Model):
     """Calibration values in force (written by the ``rig calibrate-*`` commands)."""
 
-    mount_offset_deg: float = 0.0
+    mount_offset_deg: MountOffsetDeg = 0.0
     mount_offset_u95_deg: NonNegative | None = None
     mount_offset_date: str | None = None
     mount_offset_session: str | None = None
     steering_ratio_swa_deg: tuple[float, ...] | None = None
     steering_ratio: tuple[Positive, ...] | None = None
     steering_ratio_date: str | None = None
-    optical_zero_deg: dict[str, float] = Field(default_factory=dict)
+    optical_zero_deg: Annotated[dict[str, float], AfterValidator(_offsets_within_bounds)] = Field(
+        default_factory=dict
+    )
     imu: ImuCalibrationConfig | None = None
 
 
@@ -274,7 +340,28 @@ class LogRequest(_Model):
             raise ValueError(f"log {self.name}: trigger 'ontime' needs period_s")
         if self.period_s is not None and self.period_s < 0.02 - 1e-9:
             raise ValueError(f"log {self.name}: period_s {self.period_s} is faster than 50 Hz")
+        if self.period_s is not None and not _receiver_schedules(self.period_s):
+            rates = ", ".join(f"{p:g}" for p in NOVATEL_HIGH_RATE_PERIODS_S)
+            raise ValueError(
+                f"log {self.name}: period_s {self.period_s} is not a period the receiver schedules "
+                f"({rates} s, or a whole number of seconds)"
+            )
         return self
+
+
+def _receiver_schedules(period_s: float) -> bool:
+    if period_s >= 1.0 - 1e-9:
+        return abs(period_s - round(period_s)) <= 1e-9
+    return any(abs(period_s - p) <= 1e-9 for p in NOVATEL_HIGH_RATE_PERIODS_S)
+
+
+def _novatel_baud(value: int) -> int:
+    if value not in NOVATEL_BAUDS:
+        raise ValueError(f"{value} is not a baud rate of a NovAtel port ({', '.join(map(str, NOVATEL_BAUDS))})")
+    return value
+
+
+NovatelBaud = Annotated[int, AfterValidator(_novatel_baud)]
 
 
 def _default_rover_logs() -> tuple[LogRequest, ...]:
@@ -294,7 +381,7 @@ class ReceiverConfig(_Model):
     role: Literal["base", "rover"]
     antenna: Literal["a", "b"] | None = None
     port: str
-    baud: Annotated[int, Field(gt=0)] = 115200
+    baud: NovatelBaud = 115200
     autobaud: bool = False
     command_port: str = "COM1"
     correction_port: str = "COM2"
@@ -331,19 +418,6 @@ class RelayConfig(_Model):
     ntrip_user_env: str = "VSC_RIG_NTRIP_USER"
     ntrip_password_env: str = "VSC_RIG_NTRIP_PASSWORD"
     gga_period_s: Positive = 10.0
-    source_password: SecretStr | None = Field(default=None, exclude=True, repr=False)
-    """A password given in the ``source`` URL, split off on reading (``source`` keeps ``***``); never dumped."""
-
-    @model_validator(mode="before")
-    @classmethod
-    def _split_source_password(cls, data: Any) -> Any:
-        from drivers.relay.endpoints import redact_endpoint
-
-        if isinstance(data, Mapping) and isinstance(data.get("source"), str):
-            redacted = redact_endpoint(data["source"])
-            if redacted.password is not None:
-                data = {**data, "source": redacted.text, "source_password": redacted.password.reveal()}
-        return data
     source_password: SecretStr | None = Field(default=None, exclude=True, repr=False)
     """A password given in the ``source`` URL, split off on reading (``source`` keeps ``***``); never dumped."""
 
@@ -500,8 +574,10 @@ class SimulationConfig(_Model):
     initial_heading_deg: float = 0.0
     start_gps_week: Annotated[int, Field(ge=0)] = 2400
     start_gps_seconds: NonNegative = 345600.0
-    true_mount_offset_deg: float = 0.0
-    true_optical_zero_deg: dict[str, float] = Field(default_factory=dict)
+    true_mount_offset_deg: MountOffsetDeg = 0.0
+    true_optical_zero_deg: Annotated[dict[str, float], AfterValidator(_offsets_within_bounds)] = Field(
+        default_factory=dict
+    )
     gnss: SimGnssConfig = SimGnssConfig()
     daq_clock_ppm: float = 30.0
     governed: bool = True
@@ -687,11 +763,23 @@ def _problems(exc: ValidationError, model: type[BaseModel], text: str) -> list[C
 
 def _read_toml(path: Path) -> tuple[dict[str, Any], str]:
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except FileNotFoundError as exc:
         raise ConfigError(f"{path}: no such configuration file") from exc
+    except IsADirectoryError as exc:
+        raise ConfigError(f"{path}: is a directory, not a configuration file") from exc
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read: {exc.strerror}") from exc
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        # TOML is UTF-8 by definition; name the first bad byte so it can be found in an editor
+        line = raw.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise ConfigError(
+            f"{path}: not UTF-8 text: byte 0x{raw[exc.start]:02x} at byte offset {exc.start} (line {line}, "
+            f"column {column}) is {exc.reason}; TOML files must be UTF-8"
+        ) from None
     try:
         return tomllib.loads(text), text
     except tomllib.TOMLDecodeError as exc:

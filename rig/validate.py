@@ -69,6 +69,7 @@ from rig.analysis.rollover import (
     LtrPrediction,
     PredictionError,
     RollModel,
+    VehicleLtrModel,
     horizontal_ay,
     ltr_from_lateral,
     predict_ltr,
@@ -569,23 +570,24 @@ def rollover_session(
     threshold: float = 0.9,
     progress: Progress | None = None,
 ) -> RolloverReport:
-    """LTR and its prediction for a session (module docstring). ``model``: ``auto`` (ARX when the session
-    has ``swa``), ``ar`` or ``arx``.
+    """LTR and its prediction for a session (module docstring). ``model``: ``auto`` (physics-informed
+    when the session has ``swa``, else AR), ``ar``, ``arx`` or ``physics`` (the vehicle model of the
+    profile driven by the measured steering and speed, :class:`rig.analysis.rollover.VehicleLtrModel`).
 
     Raises:
-        AnalysisError: no CAN lateral acceleration, or ``arx`` without ``swa``.
+        AnalysisError: no CAN lateral acceleration, or ``arx``/``physics`` without ``swa``.
     """
     from rig.sessiondata import load_inputs
 
     step = progress or _noop
-    if model not in ("auto", "ar", "arx"):
-        raise ConfigError(f"--model must be auto, ar or arx, got {model!r}")
+    if model not in ("auto", "ar", "arx", "physics"):
+        raise ConfigError(f"--model must be auto, ar, arx or physics, got {model!r}")
     if isinstance(source, Path | str):
         step("read session")
         inp = load_inputs(source, optical=False)
     else:
         inp = source
-    use_arx = model == "arx" or (model == "auto" and "swa" in inp.can)
+    use_arx = model in ("arx", "physics") or (model == "auto" and "swa" in inp.can)
     step("time-base verdicts")
     timing, time_base = check_inputs(
         inp, what=f"rig rollover {inp.name}", gnss=use_arx and inp.gnss is not None, optical=False,
@@ -613,7 +615,8 @@ def rollover_session(
         else:
             speed = inp.signal("vehicle_speed").at(grid, max_gap_s=_ROLE_MAX_GAP_S)
         ax = inp.can["long_accel"].at(grid, max_gap_s=_ROLE_MAX_GAP_S) if "long_accel" in inp.can else None
-        ex = LtrExogenous(swa, speed, ax, demand_model(prof))
+        ex = (LtrExogenous(swa, speed, ax, demand_model(prof)) if model == "arx"
+              else LtrExogenous(swa, speed, ax, None, VehicleLtrModel.from_vehicle(v)))
     step("prediction")
     pred = predict_ltr(grid, ltr, exogenous=ex, threshold=threshold)
     truth_t = truth_l = None

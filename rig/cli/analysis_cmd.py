@@ -228,7 +228,7 @@ def rollover(
     = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of text.")] = False,
     model: Annotated[
-        str, typer.Option("--model", help="auto (ARX with the steering when the session has swa), ar or arx.")
+        str, typer.Option("--model", help="auto (physics when the session has swa, else ar), ar, arx or physics.")
     ] = "auto",
     threshold: Annotated[float, typer.Option("--threshold", help="Warning threshold on |LTR|.")] = 0.9,
 ) -> None:

@@ -192,7 +192,7 @@ def test_rollover_against_the_wheel_loads(recorded: Recorded, tmp_path: Path) ->
     doc = json.loads(res.output)
     tr = recorded.truth
     peak = float(np.max(np.abs(tr.ltr)))
-    assert doc["model"] == "arx" and doc["truth"] is not None
+    assert doc["model"] == "physics" and doc["truth"] is not None
     assert doc["truth"]["peak_abs_ltr"] == pytest.approx(peak, rel=1e-6)
     assert doc["peak_abs_ltr"] == pytest.approx(peak, abs=0.03)
     assert doc["truth"]["ltr_error_rms"] < 0.01
@@ -201,9 +201,10 @@ def test_rollover_against_the_wheel_loads(recorded: Recorded, tmp_path: Path) ->
     assert doc["truth"]["ltr_error_max"] < 0.1
     errs = doc["truth"]["prediction_errors"]
     assert [e["horizon_s"] for e in errs] == [1.0, 2.0, 3.0] and all(e["n"] > 0 for e in errs)
-    # the warning at 0.6 starts no later than one prediction epoch after the true |LTR| first reaches 0.6
+    # the warning at 0.6 starts no later than its confirmation time (rollover.CONFIRM_S, 0.25 s) after the true
+    # |LTR| first reaches 0.6 (the prediction crosses 0.6 before the LTR does; confirming it takes 0.2 s)
     t_reach = float(tr.t[np.argmax(np.abs(tr.ltr) >= 0.6)]) + _truth_offset(recorded)
-    assert doc["first_warning_s"] is not None and doc["first_warning_s"] <= t_reach + 0.05 + 0.02
+    assert doc["first_warning_s"] is not None and doc["first_warning_s"] <= t_reach + 0.25 + 0.02
     assert doc["first_warning_s"] >= recorded.j_turn_start_s + _truth_offset(recorded) - 3.0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     text = runner.invoke(app, ["rollover", str(recorded.path)])
