@@ -627,14 +627,17 @@ class _Scanner:
         return t_min, t_max
 
     def messages_atomically(self, buf: bytes, where: str, t0: int | None, t1: int | None) -> None:
-        """Take a chunk's (or a record's) messages, all or none; the chunk's header times must match them."""
+        """Take a chunk's (or a record's) messages, all or none; the chunk's header times must match them.
+
+        (A chunk without messages has header times 0, 0; the MCAP specification says so.)
+        """
         scan = self.scan
         before = {id(tm): len(tm) for tm in scan.topics.values()}
         counts = dict(scan.channel_counts)
         orphans = {k: list(v) for k, v in self.orphans.items()}
         try:
             lo, hi = self.on_messages(buf, 0, len(buf), where)
-            if t0 is not None and lo is not None and (lo != t0 or hi != t1):
+            if t0 is not None and ((lo, hi) if lo is not None else (0, 0)) != (t0, t1):
                 raise CorruptChunkError(f"{where}: header times {t0}..{t1} disagree with its messages' {lo}..{hi}")
         except Exception:
             for tm in scan.topics.values():
