@@ -454,14 +454,11 @@ class VehicleLtrModel:
     """Below the first speed the lateral states are kinematic, above the second fully dynamic."""
 
     @classmethod
-    def from_vehicle(cls, v: VehicleDynamicsParams, **overrides: float) -> VehicleLtrModel:
+    def from_vehicle(cls, v: VehicleDynamicsParams) -> VehicleLtrModel:
         """From a vehicle description with the profile's field names (``rig.config.VehicleConfig``, the
         simulator's ``VehicleParams``); the two tyre constants are read too when the description has them."""
-        extra: dict[str, float] = {}
-        for name in ("tyre_mu_load_sensitivity", "tyre_stiffness_peak_load_ratio"):
-            if hasattr(v, name):
-                extra[name] = float(getattr(v, name))
-        extra.update(overrides)
+        tyre = ("tyre_mu_load_sensitivity", "tyre_stiffness_peak_load_ratio")
+        extra = {name: float(getattr(v, name)) for name in tyre if hasattr(v, name)}
         return cls(
             mass_kg=v.mass_kg, yaw_inertia_kgm2=v.yaw_inertia_kgm2, roll_inertia_kgm2=v.roll_inertia_kgm2,
             cg_to_front_axle_m=v.cg_to_front_axle_m, cg_to_rear_axle_m=v.cg_to_rear_axle_m,
@@ -473,7 +470,9 @@ class VehicleLtrModel:
             cornering_stiffness_rear_n_per_rad=v.cornering_stiffness_rear_n_per_rad,
             tyre_peak_mu=v.tyre_peak_mu, tyre_shape_c=v.tyre_shape_c, tyre_curvature_e=v.tyre_curvature_e,
             steering_ratio_swa_deg=tuple(float(x) for x in v.steering_ratio_swa_deg),
-            steering_ratio=tuple(float(x) for x in v.steering_ratio), **extra,
+            steering_ratio=tuple(float(x) for x in v.steering_ratio),
+            tyre_mu_load_sensitivity=extra.get("tyre_mu_load_sensitivity", 0.10),
+            tyre_stiffness_peak_load_ratio=extra.get("tyre_stiffness_peak_load_ratio", 2.0),
         )
 
     def __post_init__(self) -> None:
