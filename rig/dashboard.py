@@ -6,6 +6,10 @@ key is pressed*, the typed text becomes its note, Enter records it (Esc records 
 Keys are handled by :class:`MarkInput`, a small state machine with no terminal in it, so it is
 tested directly. Off a terminal (CI, ``nohup``, a pipe) it prints one :func:`~rig.status.status_line`
 every ``plain_period_s`` and reads no keys.
+
+Alarms: a device the session marks DEGRADED (a stalled stream, :mod:`rig.session`; a receiver
+without a solution) is a bold red ``ALARM`` line above the table (:func:`alarm_lines`), and in the
+plain output an ``ALARM`` line each period while it lasts.
 """
 
 from __future__ import annotations
@@ -24,15 +28,26 @@ from rich.console import Console, Group
 from rich.live import Live
 from rich.text import Text
 
-from rig.status import StatusBoard, render_status, status_line
+from rig.status import DeviceState, SessionStatus, StatusBoard, render_status, status_line
 from vsccore.clock import Clock
 
-__all__ = ["Dashboard", "Mark", "MarkInput"]
+__all__ = ["Dashboard", "Mark", "MarkInput", "alarm_lines"]
 
 log = logging.getLogger(__name__)
 
 _ESC = "\x1b"
 _BACKSPACE = ("\x7f", "\b")
+
+
+def alarm_lines(status: SessionStatus) -> list[str]:
+    """One line per device in the DEGRADED state (its detail, and the latest event naming it)."""
+    out = []
+    for d in status.devices:
+        if d.state is DeviceState.DEGRADED:
+            ev = next((e for e in reversed(status.recent_events) if e.startswith(f"{d.name}:")), "")
+            out.append(f"ALARM {d.name} degraded" + (f" — {ev.removeprefix(d.name + ':').strip()}" if ev else "")
+                       + (f" ({d.detail})" if d.detail else ""))
+    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -158,7 +173,8 @@ class Dashboard:
     def _render(self) -> Group:
         now = self._clock.now_ns()
         snap = self._board.snapshot(now)
-        return Group(render_status(snap, now), Text(self._marks.prompt, style="cyan"))
+        alarms = [Text(a, style="bold white on red") for a in alarm_lines(snap)]
+        return Group(*alarms, render_status(snap, now), Text(self._marks.prompt, style="cyan"))
 
     def _run(self) -> None:
         if not self.interactive:
@@ -186,5 +202,8 @@ class Dashboard:
 
     def _run_plain(self) -> None:
         while not self._stop.wait(self._plain_s):
-            self._console.print(status_line(self._board.snapshot(self._clock.now_ns())), highlight=False)
+            snap = self._board.snapshot(self._clock.now_ns())
+            for a in alarm_lines(snap):
+                self._console.print(a, highlight=False)
+            self._console.print(status_line(snap), highlight=False)
         self._console.print(status_line(self._board.snapshot(self._clock.now_ns())), highlight=False)

@@ -67,13 +67,17 @@ __all__ = [
     "Verdict",
     "backward_steps",
     "check_inputs",
+    "ended_early",
     "find_gaps",
     "gate",
     "info_json",
     "info_lines",
     "input_streams",
     "judge",
+    "live_verdicts",
     "session_verdicts",
+    "stall_threshold_ns",
+    "stream_of_topic",
     "verdict_lines",
 ]
 
@@ -452,6 +456,67 @@ def _last_sync_rms_ns(tb: Any, device: str) -> float | None:
                 return None
             return f if math.isfinite(f) else None
     return None
+
+
+# ---------------------------------------------------------------------------------------------
+# Verdicts of a live recording (at finalize)
+# ---------------------------------------------------------------------------------------------
+
+
+def stream_of_topic(topic: str) -> str | None:
+    """The stream a topic belongs to (``/can/vsc/roles`` → ``can:vsc``), None for rig/relay/sim topics."""
+    parts = topic.strip("/").split("/")
+    if len(parts) >= 2 and parts[0] in ("gnss", "can", "daq"):
+        return f"{parts[0]}:{parts[1]}"
+    if parts[0] == "optical":
+        return "daq"
+    return None
+
+
+def ended_early(last_log_ns: int, period_ns: float | None, session_end_ns: int) -> bool:
+    """A channel that stopped this long before the session's end is a gap (:data:`END_TOLERANCE_S`)."""
+    thr = max(stall_threshold_ns(period_ns or 0.0), END_TOLERANCE_S * _NS)
+    return session_end_ns - last_log_ns > thr
+
+
+def live_verdicts(
+    timings: Sequence[Any],
+    gaps: Sequence[Gap],
+    *,
+    span_ns: int,
+    timing_error_ms: Mapping[str, float],
+    host_map_error_ms: Mapping[str, float],
+    simulated: bool,
+) -> dict[str, StreamQuality]:
+    """Verdicts from what a recorder knows at finalize.
+
+    ``timings``: :class:`rig.recorder.sources.ChannelTiming` of every channel; ``gaps``: the stalls and
+    early ends found; ``timing_error_ms``: per stream (``can:<bus>``), the live clock's envelope error
+    plus the host map's; ``host_map_error_ms``: per GNSS stream.
+    """
+    fix = _speed_fix(simulated)
+    streams: dict[str, list[Any]] = {}
+    for ct in timings:
+        name = stream_of_topic(ct.topic)
+        if name is not None and name != "daq":
+            streams.setdefault(name, []).append(ct)
+    out: dict[str, StreamQuality] = {}
+    for name, cts in sorted(streams.items()):
+        figs: list[Figure] = []
+        if name in timing_error_ms:
+            figs.append(judge("timing_error_ms", timing_error_ms[name], fix))
+        if name in host_map_error_ms:
+            figs.append(judge("host_map_error_ms", host_map_error_ms[name], fix))
+        mine = [g for g in gaps if g.stream == name]
+        worst = max((100.0 * sum(g.end_ns - g.start_ns for g in mine if g.topic == ct.topic) / span_ns
+                     for ct in cts), default=0.0) if span_ns > 0 else 0.0
+        figs.append(judge("missing_percent", worst, fix))
+        figs.append(judge("backward_max_ms", max(ct.clamp_max_ns for ct in cts) / _MS,
+                          "the recorder clamped them: see the timebase events"))
+        clamped = sum(ct.clamped for ct in cts)
+        note = f"live: {clamped} log_time clamp(s)" if clamped else "live"
+        out[name] = StreamQuality(name, tuple(figs), tuple(mine), note)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------

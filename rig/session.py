@@ -19,7 +19,14 @@ through one :class:`~rig.recorder.Recorder`, one bounded source per device:
   optical sensors wired to it (decimated to ≤ 100 Hz) on ``/optical/<sensor>``; its sample clock
   is put on GPS time from the sync-switch edges and the MARKTIME/MARKPOS of the same edges;
 - ``/rig/timebase`` quality records every ``timebase_period_s`` and at the end, and
-  ``/rig/events`` for connects, disconnects, gaps, errors and warnings of every device.
+  ``/rig/events`` for connects, disconnects, gaps, errors and warnings of every device;
+- timing integrity: a channel silent for longer than its stall threshold
+  (:func:`rig.quality.stall_threshold_ns`) turns its device DEGRADED on the status board while it
+  lasts (a dashboard alarm) and is a ``gap`` event when it resumes (:mod:`rig.recorder.sources`); at
+  the end, a channel that stopped before the session did is a ``gap`` event of kind ``ended_early``,
+  a jump of the time base (the first TIME replacing the host estimate) is a ``timebase`` event, and
+  the streams' live time-base verdicts (:func:`rig.quality.live_verdicts`) are a ``timebase`` event;
+  :func:`summary_lines` reports late, stalled and clamped channels beside the drops.
 
 Decoded messages carry ``log_time`` on the common time base (GNSS logs: their GPS time in UTC;
 other devices: their device or host time mapped through the time base as known at that moment);
@@ -42,8 +49,8 @@ import math
 import shutil
 import threading
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Protocol
@@ -58,6 +65,7 @@ from drivers.daq import DaqBlock, DaqEvent, DaqSession
 from drivers.novatel import BestPos
 from drivers.relay.endpoints import mask_credentials
 from rig.config import DaqConfig, ReceiverConfig, SessionConfig
+from rig.quality import Gap, StreamQuality, ended_early, live_verdicts, stream_of_topic
 from rig.recorder import Attachment, Recorder, RecorderOptions, RecordingSummary, Source, session_metadata
 from rig.session_devices import (
     CAN_BLOCK_AGE_NS,
@@ -70,9 +78,9 @@ from rig.session_devices import (
     receiver_commands,
     roles_table,
 )
-from rig.status import StatusBoard
+from rig.status import DeviceState, StatusBoard
 from rig.timebase import Timebase
-from rig.topics import EventKind
+from rig.topics import EventKind, Severity
 from vsccore.angles import sideslip_from_azimuths
 from vsccore.clock import Clock, SystemClock
 from vsccore.errors import ConfigError, SessionFileError
@@ -142,6 +150,14 @@ class SessionSummary:
     """Problems while stopping devices (the recording itself: ``recording.error``)."""
     device_errors: dict[str, int]
     """Error events per device during the session."""
+    late: Mapping[str, float] = field(default_factory=dict)
+    """Channels that stopped before the session did: seconds before its end, per topic."""
+    stalled: Mapping[str, tuple[int, float]] = field(default_factory=dict)
+    """Channels that stalled: (stalls, seconds silent in all), per topic."""
+    clamped: Mapping[str, tuple[int, float]] = field(default_factory=dict)
+    """Channels whose log_time ran back and was clamped: (messages, largest step back in ms), per topic."""
+    verdicts: Mapping[str, StreamQuality] = field(default_factory=dict)
+    """The streams' live time-base verdicts (:func:`rig.quality.live_verdicts`)."""
 
     @property
     def parts(self) -> tuple[Path, ...]:
@@ -236,6 +252,11 @@ class RecordSession:
         self.ltr = LiveLtr(cfg)
         self._pos_a: tuple[int, BestPos] | None = None
         self._pos_b: tuple[int, BestPos] | None = None
+        self._stalled_now: dict[str, str] = {}
+        """Devices whose channel is stalled right now → the alarm text (the dashboard shows them DEGRADED)."""
+        self._steps_written = 0
+        self._timing: tuple[dict[str, float], dict[str, tuple[int, float]], dict[str, tuple[int, float]],
+                            dict[str, StreamQuality]] = ({}, {}, {}, {})
 
     # --- public --------------------------------------------------------------------------------
 
@@ -303,9 +324,11 @@ class RecordSession:
                 _step(errors, f"plugin {type(plugin).__name__}", functools.partial(plugin.detach, self))
             _step(errors, "final records", self._final_records)
             summary = rec.stop()
+            late, stalled, clamped, verdicts = self._timing
             self._summary = SessionSummary(
                 name=self.name, recording=summary, errors=tuple(errors),
                 device_errors={d.name: d.errors for d in self._devices()},
+                late=late, stalled=stalled, clamped=clamped, verdicts=verdicts,
             )
             for e in errors:
                 log.error("session %s: %s", self.name, e)
@@ -446,6 +469,8 @@ class RecordSession:
             self.relay.publish_stats()
         self._align_daq()
         self._timebase_records()
+        self._timebase_steps()
+        late, stalled, clamped, _verdicts = self._timing = self._timing_records()
         rig = self._rig
         assert rig is not None
         stats = self.recorder.stats()
@@ -455,7 +480,93 @@ class RecordSession:
             device_errors={d.name: d.errors for d in self._devices()},
             dropped={s.name: s.dropped for s in stats if s.dropped},
             daq_lost_samples=self.daq.lost if self.daq is not None else 0,
+            late_s=late, stalled={k: list(v) for k, v in stalled.items()},
+            clamped={k: list(v) for k, v in clamped.items()},
         )
+
+    def _timing_records(self) -> tuple[dict[str, float], dict[str, tuple[int, float]], dict[str, tuple[int, float]],
+                                       dict[str, StreamQuality]]:
+        """Early ends as gap events, the stalls and clamps so far, and the live verdicts as an event."""
+        timings = [t for t in self.recorder.channel_timings() if t.messages]
+        periodic = [t for t in timings if t.period_ns is not None and t.last_log_ns is not None]
+        late: dict[str, float] = {}
+        gaps: list[Gap] = []
+        if not periodic:
+            return late, {}, {}, {}
+        end = max(t.last_log_ns for t in periodic if t.last_log_ns is not None)
+        start = min(t.first_log_ns for t in periodic if t.first_log_ns is not None)
+        for t in periodic:
+            assert t.last_log_ns is not None
+            stream = stream_of_topic(t.topic) or t.source
+            if ended_early(t.last_log_ns, t.period_ns, end):
+                late[t.topic] = (end - t.last_log_ns) / NS_PER_S
+                gaps.append(Gap(stream, t.topic, "ended_early", t.last_log_ns, end))
+                self.recorder.event(
+                    EventKind.GAP, f"{t.topic} ended {late[t.topic]:.3f} s before the session", source=t.source,
+                    severity=Severity.WARNING, log_time_ns=t.last_log_ns, start_ns=t.last_log_ns, end_ns=end,
+                    topic=t.topic, gap="ended_early",
+                )
+        stalled = {t.topic: (t.stalls, t.stalled_ns / NS_PER_S) for t in timings if t.stalls}
+        clamped = {t.topic: (t.clamped, t.clamp_max_ns / 1e6) for t in timings if t.clamped}
+        # stalls are gap events already (written when the channel resumed); the verdicts want their share
+        for t in timings:
+            if t.stalls:
+                gaps.append(Gap(stream_of_topic(t.topic) or t.source, t.topic, "stall", 0, t.stalled_ns))
+        tb = self.timebase
+        ref = tb.reference_receiver
+        host_err: dict[str, float] = {}
+        if ref is not None:
+            e = tb.gnss_clock(ref).envelope_error_ns()
+            if e is not None:
+                host_err[f"gnss:{ref}"] = e / 1e6
+        add = next(iter(host_err.values()), 0.0)
+        timing_err: dict[str, float] = {}
+        for c in self.can:
+            e = tb.clock(c.clock_name).envelope_error_ns() if tb.clock(c.clock_name).n else None
+            if e is not None:
+                timing_err[f"can:{c.cc.name}"] = e / 1e6 + add
+        verdicts = live_verdicts(timings, gaps, span_ns=end - start, timing_error_ms=timing_err,
+                                 host_map_error_ms=host_err, simulated=self.cfg.simulation is not None)
+        self.recorder.event(
+            EventKind.TIMEBASE, "time-base verdicts at the end of the recording: " + ", ".join(
+                f"{k} {q.verdict.value}" for k, q in verdicts.items()),
+            log_time_ns=end, verdicts={k: q.to_json() for k, q in verdicts.items()},
+        )
+        return late, stalled, clamped, verdicts
+
+    def _timebase_steps(self) -> None:
+        """The time base's jumps (first TIME replacing the host estimate …) as ``timebase`` events."""
+        steps = self.timebase.steps()
+        for st in steps[self._steps_written:]:
+            self.recorder.event(
+                EventKind.TIMEBASE, f"time base step {st.step_ns / 1e6:+.3f} ms: {st.reason}",
+                severity=Severity.INFO if abs(st.step_ns) < 1_000_000 else Severity.WARNING,
+                log_time_ns=st.at_ns, step_ns=st.step_ns, host_ns=st.host_ns, reason=st.reason,
+            )
+        self._steps_written = len(steps)
+
+    def _stall_alarms(self) -> None:
+        """A device whose channel is silent past its stall threshold is DEGRADED while it lasts (alarm)."""
+        now_log = self.timebase.host_to_utc(self.clock.now_ns())
+        devices = {d.name for d in self._devices()}
+        now: dict[str, str] = {}
+        for t in self.recorder.channel_timings():
+            late = t.late_ns(now_log)
+            if late is not None and t.source in devices and t.source not in now:
+                now[t.source] = f"STALLED: no {t.topic} for {late / NS_PER_S:.1f} s"
+        for dev, text in now.items():
+            if dev not in self._stalled_now:
+                self.board.update(dev, state=DeviceState.DEGRADED)
+                self.board.event(f"{dev}: {text}")
+        for dev in self._stalled_now:
+            if dev not in now:
+                self.board.update(dev, state=DeviceState.OK)
+        self._stalled_now = now
+
+    @property
+    def alarms(self) -> dict[str, str]:
+        """Devices stalled right now → alarm text."""
+        return dict(self._stalled_now)
 
     def _align_daq(self) -> None:
         if self.daq is not None:
@@ -490,10 +601,12 @@ class RecordSession:
                     next_tb = now + self.timebase_period_ns
                     self._align_daq()
                     self._timebase_records()
+                self._timebase_steps()
                 mono = time.monotonic()
                 if mono >= next_board:
                     next_board = mono + 0.5
                     self._refresh_board()
+                    self._stall_alarms()
                 if self.recorder.failed.is_set() and not self.failed.is_set():
                     log.error("session %s: recording failed: %s", self.name, self.recorder.error)
                     self.failed.set()
@@ -563,8 +676,20 @@ def summary_lines(summary: SessionSummary) -> list[str]:
     """Human-readable lines about a finished session (for the CLI)."""
     rec = summary.recording
     head = (f"session {summary.name}: {rec.messages} messages in {len(rec.parts)} part(s), "
-            f"{'finalized' if rec.finalized else 'NOT finalized'}, dropped {rec.dropped}")
+            f"{'finalized' if rec.finalized else 'NOT finalized'}, dropped {rec.dropped}, "
+            f"late {len(summary.late)}, stalled {len(summary.stalled)}, clamped {len(summary.clamped)}")
     lines = [head]
+    if summary.late:
+        lines.append("  late (ended before the session): "
+                     + ", ".join(f"{k} {v:.1f} s early" for k, v in sorted(summary.late.items())))
+    if summary.stalled:
+        lines.append("  stalled: "
+                     + ", ".join(f"{k} {n}× ({s:.1f} s)" for k, (n, s) in sorted(summary.stalled.items())))
+    if summary.clamped:
+        lines.append("  log_time clamped (ran back): "
+                     + ", ".join(f"{k} {n} (max {ms:.1f} ms)" for k, (n, ms) in sorted(summary.clamped.items())))
+    bad_q = [q for q in summary.verdicts.values() if q.verdict.value != "good"]
+    lines += [f"  time base {q.message()}" for q in bad_q]
     lines += [f"  {p}" for p in rec.parts]
     if rec.error is not None:
         lines.append(f"  recording error: {rec.error}")

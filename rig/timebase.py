@@ -45,6 +45,7 @@ __all__ = [
     "ClockQuality",
     "FitStatus",
     "SyncFit",
+    "TimeStep",
     "Timebase",
     "align_sync_pulses",
     "envelope_line",
@@ -434,6 +435,11 @@ class ClockEstimator:
             return float(np.min(y[m])), 0.0
         return a, b
 
+    def last_ref_ns(self) -> int | None:
+        """Reference (host) time of the latest pair added (None before any)."""
+        with self._lock:
+            return self._recent[-1][1] if self._recent else None
+
     def fit(self) -> tuple[int, int, float] | None:
         """The latest window's line as (device x, reference y at x, slope dy/dx), or None without data."""
         with self._lock:
@@ -765,6 +771,17 @@ def _vote(edges: FloatArray, marks: IntArray, period_ns: float, max_drift_ppm: f
 # ---------------------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True, slots=True)
+class TimeStep:
+    """A jump of the live time base: the common time of one host instant changed by ``step_ns``."""
+
+    at_ns: int
+    """Common time (after the step) of the host instant."""
+    host_ns: int
+    step_ns: int
+    reason: str
+
+
 class Timebase:
     """Every clock of a session on the common time base (GPS-derived UTC, ns since the Unix epoch).
 
@@ -777,6 +794,12 @@ class Timebase:
     - ``daq``: DAQ sample index → GPS maps from :func:`align_sync_pulses` (``set_daq``).
 
     ``window_s`` and ``refit_s`` go to every :class:`ClockEstimator`.
+
+    The one deliberate jump of :meth:`host_to_utc` — from the host time itself to GPS-derived UTC when
+    the leap seconds become known (the first TIME log), or a change of them — is decided in
+    :meth:`set_leap_seconds` and recorded as a :class:`TimeStep` (:meth:`steps`); the recording
+    session writes each as a ``timebase`` event, and the recorder keeps every channel's ``log_time``
+    monotonic across it.
     """
 
     def __init__(self, *, reference_receiver: str | None = None, window_s: float = 120.0, refit_s: float = 2.0,
@@ -789,6 +812,7 @@ class Timebase:
         self._daq: dict[str, SyncFit] = {}
         self._reference = reference_receiver
         self.leap_seconds: int | None = None
+        self._steps: list[TimeStep] = []
 
     def gnss_clock(self, receiver: str) -> ClockEstimator:
         with self._lock:
@@ -810,7 +834,27 @@ class Timebase:
             return est
 
     def set_leap_seconds(self, leap_seconds: int) -> None:
-        self.leap_seconds = int(leap_seconds)
+        """GPS − UTC from a TIME log; a new value is a step of the time base (see :meth:`steps`)."""
+        leap = int(leap_seconds)
+        if leap == self.leap_seconds:
+            return
+        ref = self._ref()
+        host = ref.last_ref_ns() if ref is not None else None
+        before = self.host_to_utc(host) if host is not None else None
+        with self._lock:
+            old, self.leap_seconds = self.leap_seconds, leap
+        if host is None or before is None:
+            return
+        after = self.host_to_utc(host)
+        reason = ("GPS time (leap seconds from the TIME log) replaces the host-clock estimate" if old is None
+                  else f"leap seconds changed {old} → {leap}")
+        with self._lock:
+            self._steps.append(TimeStep(after, host, after - before, reason))
+
+    def steps(self) -> list[TimeStep]:
+        """Every jump of the time base so far, in order."""
+        with self._lock:
+            return list(self._steps)
 
     def set_daq(self, fit: SyncFit) -> None:
         self._daq[fit.device] = fit

@@ -384,7 +384,7 @@ class Source:
         self.gap(start_ns, end_ns,
                  f"{topic} stalled: no message for {(end_ns - start_ns) / 1e9:.3f} s "
                  f"(period {period_ns / 1e6:.3g} ms)",
-                 topic=topic, kind="stall", period_ns=period_ns)
+                 topic=topic, gap="stall", period_ns=period_ns)
 
     def _count_drop(self, topic: str, log_time_ns: int) -> None:
         with self._lock:
