@@ -25,6 +25,11 @@ app = typer.Typer(
 
 _state = {"debug": False}
 
+FRAME_LOGGER = "can"
+"""python-can's logger tree: its interfaces log every frame sent and received at DEBUG level
+(socketcand: "Received Ascii Message", socketcan: "sending: …"), so it stays at INFO unless
+``--trace-frames`` asks for the frames."""
+
 
 def _version_callback(value: bool) -> None:
     if value:
@@ -39,13 +44,20 @@ def _root(
         typer.Option("--version", callback=_version_callback, is_eager=True, help="Show the version."),
     ] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks and debug logs.")] = False,
+    trace_frames: Annotated[
+        bool,
+        typer.Option("--trace-frames", help="Log every CAN frame sent and received (debug level; implies --debug)."),
+    ] = False,
 ) -> None:
     """vsc-rig: record, calibrate and validate vehicle-stability-control road tests."""
+    debug = debug or trace_frames
     _state["debug"] = debug
     logging.basicConfig(
         level=logging.DEBUG if debug else logging.WARNING,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    # thousands of lines a second on a live bus: only on request
+    logging.getLogger(FRAME_LOGGER).setLevel(logging.NOTSET if trace_frames else logging.INFO)
 
 
 def _register() -> None:
@@ -98,7 +110,7 @@ def main(argv: list[str] | None = None) -> None:
     - ``--debug`` re-raises project and unexpected errors, so Python prints the traceback.
     """
     args = argv if argv is not None else sys.argv[1:]
-    debug = "--debug" in args
+    debug = "--debug" in args or "--trace-frames" in args
     try:
         # without standalone mode typer returns a command's exit code instead of exiting with it
         code = app(args=args, standalone_mode=False, prog_name="rig")
