@@ -75,11 +75,17 @@ from rig.analysis.rollover import (
     predict_ltr,
     prediction_errors,
 )
-from rig.analysis.steering import SteeringModel, SteeringReconstruction, reconstruct_steering
+from rig.analysis.steering import (
+    LateralTyreModel,
+    SteeringModel,
+    SteeringReconstruction,
+    estimate_ay_delay,
+    reconstruct_steering,
+)
 from rig.analysis.validate import ValidationResult, run_estimator, score_reference_against_truth, validate_estimate
 from rig.config import ValidationConfig, VehicleConfig, VehicleProfile
 from rig.quality import StreamQuality, check_inputs
-from vsccore.angles import FloatArray
+from vsccore.angles import FloatArray, azimuth_to_yaw
 from vsccore.errors import AnalysisError, ConfigError
 
 if TYPE_CHECKING:
@@ -137,13 +143,21 @@ def _ratio_table(profile: VehicleProfile) -> tuple[tuple[float, ...], tuple[floa
 
 
 def steering_model(profile: VehicleProfile) -> SteeringModel:
-    """The steering reconstruction's vehicle quantities from the profile (roll gain from the roll model)."""
+    """The steering reconstruction's vehicle quantities from the profile (roll gain from the roll model; yaw
+    inertia and tyre characteristic for the dynamic reconstruction, see :mod:`rig.analysis.steering`)."""
     v = profile.vehicle
     return SteeringModel(
         wheelbase_m=v.wheelbase_m, mass_kg=v.mass_kg, front_axle_load_share=v.cg_to_rear_axle_m / v.wheelbase_m,
         cornering_stiffness_front_n_per_rad=v.cornering_stiffness_front_n_per_rad,
         cornering_stiffness_rear_n_per_rad=v.cornering_stiffness_rear_n_per_rad,
         roll_gain_rad_per_mps2=roll_model(v).roll_gain_rad_per_mps2,
+        yaw_inertia_kgm2=v.yaw_inertia_kgm2,
+        tyres=LateralTyreModel(
+            track_front_m=v.track_front_m, track_rear_m=v.track_rear_m, roll_axis_height_m=v.roll_axis_height_m,
+            roll_stiffness_front_nm_per_rad=v.roll_stiffness_front_nm_per_rad,
+            roll_stiffness_rear_nm_per_rad=v.roll_stiffness_rear_nm_per_rad,
+            peak_mu=v.tyre_peak_mu, shape_c=v.tyre_shape_c, curvature_e=v.tyre_curvature_e,
+        ),
     )
 
 
@@ -676,7 +690,8 @@ def steering_session(
     stop_s: float | None = None,
 ) -> SteeringReport:
     """δ from GNSS speed and CAN a_y on the GNSS epochs (within [start_s, stop_s] on the session's time
-    base when given), against CAN SWA / steering ratio in force.
+    base when given), against CAN SWA / steering ratio in force. The a_y time-stamp delay is estimated
+    against the dual-antenna heading in the same span (:func:`rig.analysis.steering.estimate_ay_delay`).
 
     Raises:
         AnalysisError: no GNSS, ``lat_accel`` or ``swa``, or no epoch in the span.
@@ -698,9 +713,13 @@ def steering_session(
     ay = inp.signal("lat_accel").at(t, max_gap_s=_ROLE_MAX_GAP_S)
     swa = inp.signal("swa").at(t, max_gap_s=_ROLE_MAX_GAP_S)
     speed = np.where(gnss.valid, gnss.speed_mps, np.nan)[span]
-    rec = reconstruct_steering(t, speed, ay, steering_model(inp.profile),
-                               swa_rad=swa, steering_ratio=_steering_ratio_fn(inp.profile),
-                               min_speed_mps=min_speed_kmh / 3.6)
+    sm = steering_model(inp.profile)
+    # a_y's time stamps lag the motion (sensing filter, CAN latency): measured against the dual-antenna heading
+    heading = gnss.heading_rad(math.radians(inp.profile.calibration.mount_offset_deg))
+    yaw = np.where(gnss.valid & gnss.rtk_fixed_both, azimuth_to_yaw(heading), np.nan)[span]
+    delay = estimate_ay_delay(t, speed, ay, yaw, sm, min_speed_mps=min_speed_kmh / 3.6)
+    rec = reconstruct_steering(t, speed, ay, sm, swa_rad=swa, steering_ratio=_steering_ratio_fn(inp.profile),
+                               min_speed_mps=min_speed_kmh / 3.6, ay_delay_s=delay.delay_s)
     return SteeringReport(inp.name, rec, timing, time_base)
 
 

@@ -5,10 +5,12 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from rig.cli.main import app
+from tests.validate_cli.conftest import Recorded
 
 runner = CliRunner()
 G = 9.80665
@@ -97,3 +99,27 @@ def test_help_shows_the_units_and_per_tyre_wording() -> None:
                    "speeds (km/h"):
         assert phrase in text, phrase
     assert " ." not in text  # no unit swallowed before a full stop
+
+
+def test_recorded_dlc_reconstruction_to_the_published_figure(recorded: Recorded) -> None:
+    """Issue 16 §3: on a recorded session (GNSS speed, CAN a_y with the ECU's bias and noise) the DLC at 50 km/h
+    is reconstructed within 0.3° and 8 % at the peaks (the steady-state formula gave 0.51–0.60° / 7.9–10.9 %)."""
+    from rig.sessiondata import load_inputs
+
+    tr = recorded.truth
+    offset = float(load_inputs(recorded.path, can=False, optical=False).require_truth().t_s[0] - tr.t[0])
+    steer = np.flatnonzero(np.abs(tr.swa) > math.radians(10.0))
+    steer = steer[tr.t[steer] < recorded.j_turn_start_s]
+    start, stop = float(tr.t[steer[0]]) - 2.0 + offset, float(tr.t[steer[-1]]) + 2.0 + offset
+    res = runner.invoke(app, ["steering", "reconstruct", str(recorded.path), "--json", "--start", f"{start:.3f}",
+                              "--stop", f"{stop:.3f}"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)
+    print(f"steering reconstruction, recorded DLC at 50 km/h ({doc['method']}): mean |error| "
+          f"{doc['mean_abs_error_deg']:.3f}°, max {doc['max_abs_error_deg']:.3f}°, max relative error at the peaks "
+          f"{doc['max_relative_error_at_peaks_percent']:.2f} %")
+    assert doc["method"] == "single-track dynamics, non-linear tyres"
+    assert 0.005 < doc["ay_delay_s"] < 0.05  # the ECU's 15 Hz sensing filter and 10 ms output latency
+    assert len(doc["peaks_t_s"]) == 4
+    assert doc["max_abs_error_deg"] <= 0.3
+    assert doc["max_relative_error_at_peaks_percent"] <= 8.0
