@@ -52,9 +52,21 @@ _URL_PASSWORD = re.compile(r"(?P<head>[A-Za-z][A-Za-z0-9+.-]*://[^:/@\s\"']*:)[^
 _ENDPOINT_PASSWORD = re.compile(r"(?P<head>[A-Za-z][A-Za-z0-9+.-]*://[^:/@\s]*:)(?P<password>.*)@(?P<rest>[^@]*)", re.S)
 
 
+# A key/value line whose key names a password (TOML/INI ``source_password = "..."``, ``password: x``).
+_KEY_PASSWORD = re.compile(
+    r"(?im)^(?P<head>[ \t]*[\"']?[A-Za-z0-9_.-]*(?:password|passwd|secret)[A-Za-z0-9_.-]*[\"']?[ \t]*[=:][ \t]*)"
+    r"(?P<value>\S.*?)[ \t]*$"
+)
+
+
 def mask_credentials(text: str) -> str:
-    """``text`` with the password of any ``scheme://user:password@`` replaced by ``***``."""
-    return _URL_PASSWORD.sub(lambda m: f"{m.group('head')}{MASK}@", text)
+    """``text`` with every password it spells out replaced by ``***``.
+
+    Covers the password of any ``scheme://user:password@`` URL and the value of any key/value line
+    whose key names a password (a configuration file's ``relay.source_password = "..."``).
+    """
+    text = _URL_PASSWORD.sub(lambda m: f"{m.group('head')}{MASK}@", text)
+    return _KEY_PASSWORD.sub(lambda m: f'{m.group("head")}"{MASK}"', text)
 
 
 class Secret:

@@ -85,3 +85,21 @@ def test_secret_is_not_pickled() -> None:
 
     with pytest.raises(TypeError):
         pickle.dumps(Secret(PASSWORD))
+
+
+def test_a_password_given_as_a_config_key_is_masked_like_one_in_a_url() -> None:
+    """The session attaches its configuration file: a ``source_password`` key must not reach it."""
+    from drivers.relay.endpoints import mask_credentials
+
+    text = (
+        "[relay]\n"
+        'source = "ntrip://user:pa55@caster:2101/MOUNT"\n'
+        'source_password = "hunter2"  # from the caster admin\n'
+        "baud = 115200\n"
+    )
+    masked = mask_credentials(text)
+    assert "hunter2" not in masked
+    assert "pa55" not in masked
+    assert 'source_password = "***"' in masked
+    assert "baud = 115200" in masked
+    assert 'source = "ntrip://user:***@caster:2101/MOUNT"' in masked
