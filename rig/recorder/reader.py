@@ -304,6 +304,8 @@ class PartScan:
     """Damaged regions skipped, in file order (channel-loss entries last)."""
     truncation: str | None = None
     """Why the part ends early (a killed recorder), or None."""
+    orphans: dict[int, int] = field(default_factory=dict)
+    """Messages per unknown channel id (its Channel record was lost with a damaged chunk, no usable summary)."""
     channels_from_summary: set[int] = field(default_factory=set)
     """Channels known only from the summary (their Channel record was inside a damaged chunk)."""
     problem: str | None = None
@@ -621,7 +623,11 @@ class _Scanner:
             elif op == _OP_CHANNEL:
                 ch = _read_exact(buf, q, nxt, Channel)
                 if ch.schema_id and ch.schema_id not in scan.schemas:
-                    raise CorruptChunkError(f"{where}: channel {ch.topic} names unknown schema {ch.schema_id}")
+                    # its Schema record was in a damaged chunk: from the summary, else the channel stays
+                    # without one (its messages are still read; ``rig recover`` declares a placeholder)
+                    sc = self.summary.schemas.get(ch.schema_id) if self.summary is not None else None
+                    if sc is not None and self.summary_problem is None:
+                        scan.schemas[sc.id] = sc
                 self.add_channel(ch)
             q = nxt
         return t_min, t_max
@@ -784,6 +790,7 @@ class _Scanner:
         summary_damage = [r for r in scan.damage if r.kind is DamageKind.SUMMARY]
         lead = [r for r in scan.damage if r.kind is DamageKind.MAGIC]
         scan.damage = lead + regions + summary_damage
+        scan.orphans = {cid: v[0] for cid, v in sorted(self.orphans.items())}
         for cid, (n, t0, t1) in sorted(self.orphans.items()):
             scan.damage.append(DamagedRegion(0, 0, DamageKind.CHANNEL,
                                              f"channel {cid} is not defined in any intact record", (),

@@ -14,6 +14,7 @@ reader opens (the chunks themselves are kept byte for byte, not re-compressed).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import shutil
@@ -28,6 +29,7 @@ from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
     AttachmentIndex,
+    Channel,
     ChunkIndex,
     DataEnd,
     Footer,
@@ -35,6 +37,7 @@ from mcap.records import (
     McapRecord,
     Metadata,
     MetadataIndex,
+    Schema,
     Statistics,
     SummaryOffset,
 )
@@ -378,9 +381,12 @@ def recover(src: Path | str, dst: Path | str | None = None, *, overwrite: bool =
             else:
                 Header(profile="", library="vsc-rig recover").write(out)
                 head = MCAP_MAGIC
-            # channels whose Channel record was lost with a damaged chunk: defined again up front
-            lost = [scan.channels[c] for c in sorted(scan.channels_from_summary)]
-            for sid in sorted({c.schema_id for c in lost if c.schema_id}):
+            # channels whose Channel record was lost with a damaged chunk: defined again up front (from the
+            # summary; or, when that is gone too, as placeholders so that their messages stay readable)
+            scan = _with_placeholder_channels(scan)
+            lost = [scan.channels[c] for c in sorted(scan.channels_from_summary | set(scan.orphans))]
+            placeholders = {sid for sid, sc in scan.schemas.items() if sc.name == f"unknown{sid}" and not sc.data}
+            for sid in sorted({c.schema_id for c in lost if c.schema_id} | placeholders):
                 if sid in scan.schemas:
                     scan.schemas[sid].write(out)
             for ch in lost:
@@ -417,6 +423,23 @@ def recover(src: Path | str, dst: Path | str | None = None, *, overwrite: bool =
     remove_stale_reserve(s)
     log.info("recovered %s -> %s (%d messages)", s, d, scan.message_count)
     return _report(d, scan, was_finalized=scan.finalized and scan.problem is None, finalized=True)
+
+
+def _with_placeholder_channels(scan: PartScan) -> PartScan:
+    """``scan`` with a placeholder channel (``/unknown/channel<N>``, no schema) for each unknown channel id."""
+    missing = {ch.schema_id for ch in scan.channels.values() if ch.schema_id and ch.schema_id not in scan.schemas}
+    if not scan.orphans and not missing:
+        return scan
+    schemas = dict(scan.schemas)
+    for sid in missing:  # its Schema record was lost with a damaged chunk
+        schemas[sid] = Schema(id=sid, name=f"unknown{sid}", encoding="", data=b"")
+    channels = dict(scan.channels)
+    counts = dict(scan.channel_counts)
+    for cid, n in scan.orphans.items():
+        channels[cid] = Channel(id=cid, schema_id=0, topic=f"/unknown/channel{cid}", message_encoding="",
+                                metadata={"vsc_rig.recovered": "the Channel record was lost in a damaged chunk"})
+        counts[cid] = n
+    return dataclasses.replace(scan, schemas=schemas, channels=channels, channel_counts=counts)
 
 
 def _read_exactly(f: IO[bytes], n: int, path: Path) -> bytes:
