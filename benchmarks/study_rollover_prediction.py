@@ -9,6 +9,8 @@ manoeuvre's peak |LTR| (published figures for the AR method: 5.1 / 7.4 / 11.2 % 
   LTR increments, order by AIC, 3 s sliding window refitted every 0.25 s);
 - ``arx``: the same window with the steering demand as exogenous input (steering held, speed
   extrapolated; see the module docstring of :mod:`rig.analysis.rollover`);
+- ``physics``: the physics-informed predictor (``LtrExogenous.vehicle``: the profile's vehicle model
+  tracking the measured SWA and speed, propagated with the steering held; ``rig rollover``'s default);
 - ``floor``: the simulator itself, restarted for every issue time with the steering held at its
   value at that time from then on: the best a predictor can do without knowing the driver's next
   steering input. It is not a method, it is the bound.
@@ -22,8 +24,10 @@ Evaluation window (stated once, used for every method): the manoeuvre runs from 
 onset t_on (first |SWA| > 5°) to the end of the scenario t_end (end of the hold, or of the
 post-steer time of the fishhook). Window **B** (the headline): predictions issued at t ≥ t_on whose
 target time t + h ≤ t_end; window **A**: every prediction whose target lies in [t_on, t_end],
-including those issued up to h before the onset (nothing can foresee the steer then). Predictions
-are issued at 20 Hz; the peak is max |true LTR| over [t_on, t_end].
+including those issued up to h before the onset (nothing can foresee the steer then); **whole**: every
+prediction landing anywhere in the record (lead-in, manoeuvre, run-out), the peak over the record
+(the published figures were likely averaged over whole test drives). Predictions are issued at 20 Hz;
+the peak is max |true LTR| over the span.
 
 Run: ``/work/venv/bin/python benchmarks/study_rollover_prediction.py [--no-floor]``
 """
@@ -44,6 +48,7 @@ from rig.analysis.rollover import (
     LtrExogenous,
     LtrPrediction,
     RollModel,
+    VehicleLtrModel,
     horizontal_ay,
     ltr_from_lateral,
     predict_ltr,
@@ -56,6 +61,7 @@ from sim_devices.vehicle.scenarios import SCENARIOS, Scenario, ScenarioContext, 
 P = VehicleParams()
 TRACK = 0.5 * (P.track_front_m + P.track_rear_m)
 ROLL = RollModel.from_vehicle(P)
+VEHICLE = VehicleLtrModel.from_vehicle(P)
 DEMAND = LtrDemandModel(P.wheelbase_m, P.understeer_gradient_rad_per_mps2, P.tyre_peak_mu, P.cg_height_m,
                         P.roll_axis_height_m, TRACK, ROLL.roll_gain_rad_per_mps2,
                         tuple(P.steering_ratio_swa_deg), tuple(P.steering_ratio))
@@ -140,7 +146,7 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     sums: dict[tuple[str, str, str], list[np.ndarray]] = {}
     print(f"{'manoeuvre':<34} {'method':<12} {'window B: 1 s / 2 s / 3 s [% of peak]':<40} "
-          f"{'window A':<22} {'n (B)':<12} time")
+          f"{'window A':<22} {'whole record':<22} {'n (B)':<12} time")
     for name, kw in MANOEUVRES:
         sc = make_scenario(name, **kw)
         tr = simulate(sc, P, rate_hz=100.0)
@@ -154,31 +160,47 @@ def main() -> None:
         t0 = time.perf_counter()
         arx = predict_ltr(tr.t, ltr, exogenous=ex)
         t_arx = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        phys = predict_ltr(tr.t, ltr, exogenous=dataclasses.replace(ex, vehicle=VEHICLE))
+        t_phys = time.perf_counter() - t0
         held = np.where(np.isnan(ar.predicted), np.nan, np.repeat(ar.ltr[:, None], len(HORIZONS), axis=1))
         persist = dataclasses.replace(ar, predicted=held, model="persistence")
         methods: list[tuple[str, LtrPrediction, float]] = [("persistence", persist, 0.0), ("ar", ar, t_ar),
-                                                           ("arx", arx, t_arx)]
+                                                           ("arx", arx, t_arx), ("physics", phys, t_phys)]
         if not args.no_floor:
             t0 = time.perf_counter()
             methods.append(("floor", floor_prediction(sc, tr, ar.t), time.perf_counter() - t0))
         for mname, pred, el in methods:
             b = prediction_errors(pred, tr.t, tr.ltr, t_start_s=on, t_stop_s=end, issued_from_s=on)
             a = prediction_errors(pred, tr.t, tr.ltr, t_start_s=on, t_stop_s=end)
+            w = prediction_errors(pred, tr.t, tr.ltr)
             pb = np.array([e.percent_of_peak for e in b])
             pa = np.array([e.percent_of_peak for e in a])
+            pw = np.array([e.percent_of_peak for e in w])
             sums.setdefault((name, mname, "B"), []).append(pb)
             sums.setdefault((name, mname, "A"), []).append(pa)
+            sums.setdefault((name, mname, "W"), []).append(pw)
             print(f"{label:<34} {mname:<12} {' / '.join(f'{x:5.1f}' for x in pb):<40} "
-                  f"{' / '.join(f'{x:.1f}' for x in pa):<22} {'/'.join(str(e.n) for e in b):<12} {el:.2f} s")
-    print("\nmean over the variants of each manoeuvre (window B; window A in brackets):")
+                  f"{' / '.join(f'{x:.1f}' for x in pa):<22} {' / '.join(f'{x:.1f}' for x in pw):<22} "
+                  f"{'/'.join(str(e.n) for e in b):<12} {el:.2f} s")
+    print("\nmean over the variants of each manoeuvre (window B; window A and the whole record in brackets):")
     for name in dict.fromkeys(n for n, _ in MANOEUVRES):
-        for mname in ("persistence", "ar", "arx", "floor"):
+        for mname in ("persistence", "ar", "arx", "physics", "floor"):
             if (name, mname, "B") not in sums:
                 continue
             mb = np.mean(sums[(name, mname, "B")], axis=0)
             ma = np.mean(sums[(name, mname, "A")], axis=0)
+            mw = np.mean(sums[(name, mname, "W")], axis=0)
             print(f"  {name:<9} {mname:<12} {' / '.join(f'{x:5.1f}' for x in mb)}   "
-                  f"({' / '.join(f'{x:.1f}' for x in ma)})")
+                  f"(A {' / '.join(f'{x:.1f}' for x in ma)}; whole {' / '.join(f'{x:.1f}' for x in mw)})")
+    if not args.no_floor:
+        print("\nphysics / floor and physics / persistence, window B, worst variant (issue 16: within 10 % of the "
+              "floor on the fishhook, never worse than persistence):")
+        for name in dict.fromkeys(n for n, _ in MANOEUVRES):
+            ratio = np.asarray(sums[(name, "physics", "B")]) / np.asarray(sums[(name, "floor", "B")])
+            worst = np.asarray(sums[(name, "physics", "B")]) / np.asarray(sums[(name, "persistence", "B")])
+            print(f"  {name:<9} to the floor {' / '.join(f'{x:.3f}' for x in ratio.max(axis=0))}; "
+                  f"to persistence {' / '.join(f'{x:.3f}' for x in worst.max(axis=0))}")
     print("published (issue 9): fishhook 5.1 / 7.4 / 11.2, J-turn 4.3 / 6.2 / 10.3")
 
 

@@ -373,6 +373,7 @@ def score_manoeuvres(
         return compare(
             t[a:b], est[a:b], ref[a:b],
             reference_valid=(valid & sub)[a:b],
+            scored=sub[a:b],
             reference_sigma=None if sigma is None else sigma[a:b],
             ay=None if ay is None else ay[a:b],
             tolerances=tol_for(kind),

@@ -198,11 +198,14 @@ def compare(
     tolerances: Tolerances | None = None,
     ay_bins: Sequence[float] = DEFAULT_AY_BINS,
     max_lag_s: float = 1.0,
+    scored: npt.ArrayLike | None = None,
 ) -> ValidationMetrics:
     """Score ``estimate`` against ``reference`` (both rad, on ``t``).
 
     ``reference_valid`` restricts the comparison (e.g. ``ReferenceSideslip.valid`` or a
-    manoeuvre's mask); ``ay`` (m/s²) enables the per-bin statistics.
+    manoeuvre's mask); ``ay`` (m/s²) enables the per-bin statistics. ``scored``: the samples being
+    judged (default all); the reference's valid fraction is counted over them only, so samples of
+    manoeuvres that do not need the reference (low-speed manoeuvring) do not count as invalid.
 
     Raises:
         AnalysisError: bad arrays or no common valid sample.
@@ -222,7 +225,8 @@ def compare(
     bias = float(np.mean(e))
     max_abs = float(np.max(ae))
     p95 = float(np.percentile(ae, 95.0))
-    valid_fraction = float(np.count_nonzero(ref_ok) / n)
+    judged = np.ones(n, dtype=bool) if scored is None else as_bool("scored", scored, n)
+    valid_fraction = float(np.count_nonzero(ref_ok & judged) / max(1, np.count_nonzero(judged)))
     if n >= 3:
         try:
             lag, corr = estimate_lag(tt, est, ref, max_lag_s=max_lag_s, valid=m)

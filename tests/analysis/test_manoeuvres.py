@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig.analysis.manoeuvres import ManoeuvreKind, Source, apply_marks, segment_manoeuvres
+from rig.analysis.manoeuvres import (
+    Manoeuvre,
+    ManoeuvreKind,
+    Source,
+    apply_marks,
+    score_manoeuvres,
+    segment_manoeuvres,
+)
 from sim_devices.vehicle import GroundTruth
 from vsccore.errors import AnalysisError
 
@@ -73,3 +80,37 @@ def test_operator_marks_override(mixed: GroundTruth) -> None:
     assert sum(m.stop_index - m.start_index for m in marked) == len(mixed)
     with pytest.raises(AnalysisError, match="ends"):
         apply_marks(mixed.t, mans, [(5.0, 4.0, "x")])
+
+
+def test_reference_validity_is_judged_over_the_manoeuvres_that_need_it() -> None:
+    """Issue 16: low-speed circles in the middle of a drive (no GNSS sideslip below walking pace) made the demo's
+    headline say "reference valid 22 % of the time"; it is judged over the manoeuvres that need it.
+    """
+    t = np.arange(0.0, 100.0, 0.05)
+    n = t.size
+    rng = np.random.default_rng(5)
+    ref = np.radians(0.5) * np.sin(0.3 * t)
+    est = ref + np.radians(0.05) * rng.standard_normal(n)
+    low = (t >= 20.0) & (t < 80.0)
+    valid = ~low  # the reference is invalid exactly where the car crawls
+    i20, i80 = int(np.argmax(t >= 20.0)), int(np.argmax(t >= 80.0))
+    mans = [
+        Manoeuvre(ManoeuvreKind.STRAIGHT, 0, i20, float(t[0]), float(t[i20 - 1])),
+        Manoeuvre(ManoeuvreKind.LOW_SPEED, i20, i80, float(t[i20]), float(t[i80 - 1])),
+        Manoeuvre(ManoeuvreKind.STEADY_STATE_CORNERING, i80, n, float(t[i80]), float(t[-1])),
+    ]
+    _per, kinds, overall = score_manoeuvres(t, est, ref, mans, reference_valid=valid)
+    assert overall.metrics is not None
+    assert overall.metrics.valid_fraction == pytest.approx(1.0)  # was 0.4 (low-speed samples counted as invalid)
+    assert not any("reference valid" in f for f in overall.metrics.failures)
+    assert overall.metrics.passed
+    # where the reference is needed and missing, it still counts
+    valid2 = valid.copy()
+    valid2[100:i20] = False
+    valid2[i80 + 100 :] = False
+    _per, _kinds, overall2 = score_manoeuvres(t, est, ref, mans, reference_valid=valid2)
+    assert overall2.metrics is not None
+    assert overall2.metrics.valid_fraction == pytest.approx(200 / (i20 + n - i80))
+    assert any("reference valid" in f for f in overall2.metrics.failures)
+    low_kind = next(k for k in kinds if k.kind is ManoeuvreKind.LOW_SPEED)
+    assert low_kind.metrics is None  # nothing to score there
