@@ -391,9 +391,12 @@ def session_verdicts(ds: Session) -> dict[str, StreamQuality]:
                                                     "check the sync switch wiring to the DAQ and the event input"))
         else:
             notes[name] = "no live sync-pulse record: timed by the analysis' own alignment"
-    # gaps: against the last stream's end
-    ends = [int(s.times.max()) for s in streams.values() if s.times is not None and s.times.size]
-    starts = [int(s.times.min()) for s in streams.values() if s.times is not None and s.times.size]
+    # gaps: against the session's end, which GNSS (on GPS time) tells best; a late host-stamped stream
+    # must not move it (its lag is judged by its timing figure)
+    timed = [s for s in streams.values() if s.times is not None and s.times.size]
+    ref_streams = [s for s in timed if s.name.startswith("gnss:")] or timed
+    ends = [int(s.times.max()) for s in ref_streams if s.times is not None]
+    starts = [int(s.times.min()) for s in ref_streams if s.times is not None]
     session_end = max(ends) if ends else None
     span = (max(ends) - min(starts)) if ends else 0
     out: dict[str, StreamQuality] = {}
@@ -402,8 +405,7 @@ def session_verdicts(ds: Session) -> dict[str, StreamQuality]:
         gaps: list[Gap] = []
         if s.times is not None and s.times.size:
             gaps = find_gaps(name, s.main_topic, s.times, session_end)
-            fix = speed_fix if not name.startswith("can:") else speed_fix + "; check the CAN reader kept up"
-            figs.append(judge("missing_percent", _missing_percent(gaps, span), fix))
+            figs.append(judge("missing_percent", _missing_percent(gaps, span), speed_fix))
         back = 0.0
         n_back = 0
         for topic in s.topics:
@@ -438,7 +440,10 @@ def _host_arrival_lag_ms(records: npt.NDArray[Any]) -> float:
     period = float(np.median(d[d > 0])) if np.any(d > 0) else 0.0
     if period <= 0:
         return math.nan
-    k = (h[0] + np.round(np.arange(h.size) * period)).astype(np.int64)
+    # frame index: one period per frame, except across a silence long enough to be a gap (frames lost),
+    # which is credited with the periods it spans (a backlog's burst must not count as lost frames)
+    steps = np.where(d > stall_threshold_ns(period), np.round(d / period), 1.0)
+    k = (h[0] + np.round(np.r_[0.0, np.cumsum(steps)] * period)).astype(np.int64)
     est = _envelope("can:host", k, h)
     return _lag_p95_ns(est, k, h) / _MS if est is not None else math.nan
 

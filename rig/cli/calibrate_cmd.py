@@ -24,6 +24,13 @@ def _dump(obj: Any) -> str:
     return json.dumps(obj, indent=1, allow_nan=True, default=str)
 
 
+def _timing_headline(warnings: Any) -> None:
+    """Degraded time-base verdicts (:mod:`rig.quality`) first, before the result they qualify."""
+    for w in warnings:
+        if str(w).startswith("TIMING DEGRADED"):
+            typer.echo(str(w))
+
+
 def _help(doc: str | None) -> str:
     """A docstring as command help: paragraphs re-flowed (one line each), rich markup brackets escaped."""
     paras = [" ".join(ln.strip() for ln in p.splitlines()) for p in inspect.cleandoc(doc or "").split("\n\n")]
@@ -111,6 +118,7 @@ def calibrate_baseline_cmd(
     if as_json:
         typer.echo(_dump(out))
         return
+    _timing_headline(cal.warnings)
     typer.echo(format_baseline(cal), nl=False)
     if "calibration_file" in files:
         typer.echo(f"recorded in {files['calibration_file']}")
@@ -155,6 +163,7 @@ def calibrate_steering_ratio_cmd(
     if as_json:
         typer.echo(_dump(out))
         return
+    _timing_headline(cal.warnings)
     typer.echo(format_steering(cal), nl=False)
     if "calibration_file" in files:
         typer.echo(f"recorded in {files['calibration_file']}")
