@@ -12,7 +12,22 @@ Recordings are kept under ``--dir`` and reused (``--rescore`` scores what is the
 recording), so the table can be built over several runs on a busy machine.
 
 Run: ``.venv/bin/python benchmarks/study_reference_coverage.py --seeds 1-5 [--kinds dlc50,sine80,jturn,circle]``
-(≈ 40 s of wall time per recording at 2×).
+(≈ 12–18 s of wall time per recording at 2×; the table pools over the seeds given).
+
+Measured (seeds 1–10 of each kind, recorded at 2×; seeds 1–5 were used while developing, 6–10 not):
+
+| Manoeuvre | coverage pooled | worst session | RMS pooled | mean U95 half-width |
+|---|---|---|---|---|
+| DLC 50 km/h | 99.0 % | 92.0 % (seed 10) | 0.042° | 0.113° |
+| sine with dwell 80 km/h | 98.8 % | 93.5 % (seed 5) | 0.056° | 0.128° |
+| J-turn 60 km/h | 99.8 % | 98.4 % (seed 10) | 0.053° | 0.132° |
+| steady circle R40 45 km/h | 99.8 % | 98.5 % (seed 1) | 0.043° | 0.122° |
+
+Before (the same recordings, seeds 1–5): DLC 95.7 % (worst 88.9 %), sine 94.5 % (worst 78.4 %),
+J-turn 80.6 % worst, circle 67 % worst. The band is dominated by the heading: on these ≈ 25 s
+recordings the smoother can average the 1 s-correlated baseline noise over little more than the
+record, so the heading is known to ≈ 0.05° (1σ) and carries a bias of that size over a whole
+manoeuvre; the band says so.
 """
 
 from __future__ import annotations
@@ -34,6 +49,7 @@ from rig.simworld import record_simulated
 from rig.validate import validate_session
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, make_scenario, simulate
+from vsccore.errors import RigError
 
 FAST_RTK = RtkParams(max_correction_age_s=5.0, float_hold_s=10.0, psrdiff_timeout_s=30.0, time_to_float_s=1.0,
                      time_to_fix_s=3.0)
@@ -186,7 +202,11 @@ def main() -> None:
             path = record_case(kind, seed, a.dir, a.speed)
             t1 = time.monotonic()
             span = json.loads(done.read_text())["span_truth_s"]
-            s = score_session(load_inputs(path, optical=False), kind, seed, (float(span[0]), float(span[1])))
+            try:
+                s = score_session(load_inputs(path, optical=False), kind, seed, (float(span[0]), float(span[1])))
+            except RigError as exc:  # e.g. a time base the quality gate refuses: say so, score the rest
+                print(f"{kind:7s} seed {seed:2d}: not scored: {exc}", flush=True)
+                continue
             scores.append(s)
             print(f"{kind:7s} seed {seed:2d}: n {s.n:4d}  coverage {100 * s.coverage:5.1f} %  RMS {s.rms_deg:.4f}°  "
                   f"mean {s.mean_err_deg:+.4f}°  max {s.max_abs_err_deg:.3f}°  U95 {s.mean_u95_deg:.4f}°  "
