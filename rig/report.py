@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from rig.analysis.steering import ErrorModel
+    from rig.analysis.validate import ValidationResult
     from rig.validate import RolloverReport, SessionValidation
 
 __all__ = [
@@ -357,6 +358,12 @@ def write_validation_report(sv: SessionValidation, out_dir: Path) -> ReportFiles
     return ReportFiles(page, mj, mc, tuple(plots))
 
 
+def _needed_validity(res: ValidationResult) -> float:
+    """Valid fraction of the reference over the manoeuvres that need it (the overall score's span)."""
+    m = res.overall.metrics
+    return res.reference_valid_fraction if m is None else m.valid_fraction
+
+
 def _html(sv: SessionValidation, embedded: Sequence[tuple[str, str]]) -> str:
     res = sv.result
     verdict = "PASS" if res.passed else "FAIL"
@@ -371,15 +378,23 @@ def _html(sv: SessionValidation, embedded: Sequence[tuple[str, str]]) -> str:
         f"<li>session: <code>{html.escape(str(sv.session_path))}</code></li>",
         f"<li>estimate: {html.escape(res.estimate_source)}</li>",
         (f"<li>reference: dual-antenna GNSS, method <b>{html.escape(res.reference_method)}</b>, "
-         f"valid {100 * res.reference_valid_fraction:.1f} % of the epochs "
-         f"({html.escape(sv.invalid_summary)})</li>"),
+         f"valid {100 * _needed_validity(res):.1f} % of the epochs of the manoeuvres that need it "
+         f"({100 * res.reference_valid_fraction:.1f} % of the whole drive, low-speed manoeuvring included; "
+         f"{html.escape(sv.invalid_summary)})</li>"),
         f"<li>tolerances: {html.escape(sv.tolerance_text)}</li>",
         f"<li>duration {sv.t_s[-1] - sv.t_s[0]:.1f} s, {sv.t_s.size} GNSS epochs</li>",
         "</ul>",
     ]
     overall = res.overall.metrics
     if overall is not None and overall.failures:
-        parts.append("<p class='fail'>failed: " + html.escape("; ".join(overall.failures)) + "</p>")
+        # two different verdicts: the estimate is wrong, or the reference could not judge it often enough
+        est_f = [f for f in overall.failures if not f.startswith("reference valid")]
+        ref_f = [f for f in overall.failures if f.startswith("reference valid")]
+        if est_f:
+            parts.append("<p class='fail'>the estimate failed: " + html.escape("; ".join(est_f)) + "</p>")
+        if ref_f:
+            parts.append("<p class='fail'>the reference was not valid often enough to judge the estimate: "
+                         + html.escape("; ".join(ref_f)) + "</p>")
     for w in sv.warnings:
         if w not in sv.timing_warnings:
             parts.append(f"<p class='warn'>warning: {html.escape(w)}</p>")

@@ -729,7 +729,8 @@ def validation_lines(sv: SessionValidation) -> list[str]:
     o = res.overall.metrics
     lines = [
         (f"session {sv.session_name}: {sv.t_s[-1] - sv.t_s[0]:.1f} s, reference {res.reference_method}, "
-        f"valid {100 * res.reference_valid_fraction:.1f} % of {sv.t_s.size} epochs"),
+        f"valid {100 * (o.valid_fraction if o is not None else res.reference_valid_fraction):.1f} % of the epochs "
+        f"of the manoeuvres that need it ({100 * res.reference_valid_fraction:.1f} % of all {sv.t_s.size})"),
         *sv.timing_warnings,
         f"estimate: {res.estimate_source}",
     ]

@@ -226,7 +226,7 @@ def compare(
     max_abs = float(np.max(ae))
     p95 = float(np.percentile(ae, 95.0))
     judged = np.ones(n, dtype=bool) if scored is None else as_bool("scored", scored, n)
-    valid_fraction = float(np.count_nonzero(ref_ok & judged) / max(1, np.count_nonzero(judged)))
+    valid_fraction = float(np.count_nonzero(ref_ok & judged)) / float(max(1, int(np.count_nonzero(judged))))
     if n >= 3:
         try:
             lag, corr = estimate_lag(tt, est, ref, max_lag_s=max_lag_s, valid=m)
