@@ -23,7 +23,7 @@ Measured (seeds 1–10 of each kind, recorded at 2×; seeds 1–5 were used whil
 | J-turn 60 km/h | 99.8 % | 98.4 % (seed 10) | 0.053° | 0.132° |
 | steady circle R40 45 km/h | 99.8 % | 98.5 % (seed 1) | 0.043° | 0.122° |
 
-Before (commit 5cd6acf's reference, the same recordings, seeds 1–5): pooled / worst / RMS / U95
+Before (the reference as of c008553, the same recordings, seeds 1–5): pooled / worst / RMS / U95
 DLC 95.7 % / 88.9 % / 0.053° / 0.137°, sine 94.5 % / 78.4 % / 0.070° / 0.142°, J-turn 94.8 % / 80.6 % /
 0.062° / 0.126°, circle 85.3 % / 64.0 % / 0.062° / 0.121°. The band is dominated by the heading: on these ≈ 25 s
 recordings the smoother can average the 1 s-correlated baseline noise over little more than the
