@@ -74,6 +74,7 @@ __all__ = [
     "daq_samples",
     "decode_json",
     "encode_json",
+    "encode_record",
     "flatten_metadata",
     "gnss_bestpos",
     "gnss_bestvel",
@@ -172,6 +173,41 @@ def encode_json(obj: Any) -> bytes:
     return text.encode()
 
 
+def _without_nulls(obj: Any) -> Any:
+    """``obj`` with every object member whose value is None, NaN or ±inf left out (arrays keep their length)."""
+    if isinstance(obj, Mapping):
+        out = {}
+        for k, v in obj.items():
+            v = _finite(v) if isinstance(v, float | np.floating) else v
+            if v is not None:
+                out[k] = _without_nulls(v)
+        return out
+    if isinstance(obj, list | tuple):
+        return [_without_nulls(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _finite(obj.tolist())
+    if isinstance(obj, float | np.floating):
+        return _finite(obj)
+    return obj
+
+
+def encode_record(obj: Any) -> bytes:
+    """A decoded message as compact JSON, a field whose value is unknown (None, NaN, ±inf) left out.
+
+    A schema field that can be unknown is optional and has exactly one type: JSON-Schema validators
+    (Draft 2020-12) accept its absence, where they reject ``null`` for ``"type": "number"``, and
+    Foxglove's schema reader takes one type per field (no ``["number", "null"]``). Readers treat an
+    absent field as unknown.
+    """
+    try:
+        text = _ENCODER.encode(obj)
+    except ValueError:
+        text = "null"  # NaN or inf somewhere: take the slow path below
+    if "null" in text:
+        text = _ENCODER.encode(_without_nulls(obj))
+    return text.encode()
+
+
 def decode_json(data: bytes) -> Any:
     """Inverse of :func:`encode_json`."""
     return json.loads(data)
@@ -203,12 +239,10 @@ def validate_json(schema: Mapping[str, Any], value: Any, path: str = "$") -> lis
     """Check ``value`` against the subset of JSON Schema used here; return the problems found.
 
     Supports ``type`` (one or a list), ``properties``, ``required``, ``additionalProperties``,
-    ``items``, ``minItems``/``maxItems``, ``enum``, ``const``, ``oneOf``, ``minimum``/``maximum``, and
-    the annotation ``"x-nullable": true`` (null allowed; see the note at :func:`_num`).
+    ``items``, ``minItems``/``maxItems``, ``enum``, ``const``, ``oneOf``, ``minimum``/``maximum``. A
+    member whose value is None counts as absent, as :func:`encode_record` writes it (see :func:`_num`).
     """
     problems: list[str] = []
-    if value is None and schema.get("x-nullable"):
-        return problems
     types = schema.get("type")
     if types is not None:
         allowed = [types] if isinstance(types, str) else list(types)
@@ -230,10 +264,12 @@ def validate_json(schema: Mapping[str, Any], value: Any, path: str = "$") -> lis
     if isinstance(value, dict):
         props: Mapping[str, Any] = schema.get("properties", {})
         for req in schema.get("required", ()):
-            if req not in value:
+            if value.get(req) is None:
                 problems.append(f"{path}: missing required field {req!r}")
         extra = schema.get("additionalProperties", True)
         for key, sub in value.items():
+            if sub is None:
+                continue
             if key in props:
                 problems.extend(validate_json(props[key], sub, f"{path}.{key}"))
             elif extra is False:
@@ -352,15 +388,17 @@ def _obj(
 
 
 # Foxglove's JSON-Schema reader takes exactly one "type" per field (no ["number", "null"]) and needs
-# "properties" on every object, so nullable fields carry the annotation "x-nullable": true instead.
+# "properties" on every object, while standard validators reject null for "type": "number". So a field
+# that can be unknown is optional (never in "required") and left out of the message when unknown
+# (encode_record); its description says so.
 
 
 def _num(desc: str, nullable: bool = False) -> dict[str, Any]:
-    return {"type": "number", "description": desc, **({"x-nullable": True} if nullable else {})}
+    return {"type": "number", "description": f"{desc} (absent when unknown)" if nullable else desc}
 
 
 def _int(desc: str, nullable: bool = False) -> dict[str, Any]:
-    return {"type": "integer", "description": desc, **({"x-nullable": True} if nullable else {})}
+    return {"type": "integer", "description": f"{desc} (absent when unknown)" if nullable else desc}
 
 
 def _map(desc: str, values: Mapping[str, Any] | bool, known: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -489,7 +527,7 @@ SCHEMA_TIME = SchemaSpec(
             "utc_status": _str("NovAtel UTC status (INVALID, VALID, WARNING)"),
             "utc_iso": _str("UTC date and time reported by the receiver (ISO 8601)"),
         },
-        ("gps_time_ns", "clock_status", "utc_offset_s", "utc_status"),
+        ("gps_time_ns", "clock_status", "utc_status"),
     ),
 )
 SCHEMA_HEADING = SchemaSpec(
@@ -585,7 +623,7 @@ SCHEMA_CAN_ROLES = SchemaSpec(
             "device_time_ns": _int("Interface timestamp (ns, interface clock) or null", True),
             "roles": _map(
                 "role → SI value (only the roles this frame carries); other role names may appear",
-                {"type": "number", "x-nullable": True},
+                {"type": "number", "description": "SI value (absent when unknown)"},
                 {role: _num(f"{role} ({unit})", True) for role, unit in ROLE_SI_UNITS.items()},
             ),
             "valid": _bool("False when the frame's quality bit, counter or checksum flags it"),

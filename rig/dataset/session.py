@@ -274,12 +274,17 @@ def _columns(rows: Sequence[Mapping[str, Any]], topic: str) -> dict[str, npt.NDA
             keys.update(dict.fromkeys(r))
     spec, _params = _spec(topic)
     props: Mapping[str, Any] = spec.schema.document.get("properties", {}) if spec is not None else {}
+    if rows:
+        # a field left out while unknown (rig.topics.encode_record) is still a column, all unknown
+        for k, sub in props.items():
+            if k not in keys and sub.get("type") in ("number", "integer"):
+                keys[k] = None
     cols: dict[str, npt.NDArray[Any]] = {}
     for k in keys:
         vals = [r.get(k) for r in rows]
         declared = props.get(k, {}).get("type")
         sample = next((v for v in vals if v is not None), None)
-        if declared == "number" and not isinstance(sample, dict | list):
+        if (declared == "number" and not isinstance(sample, dict | list)) or (declared == "integer" and sample is None):
             cols[k] = np.asarray([np.nan if v is None else float(v) for v in vals], dtype=np.float64)
         elif isinstance(sample, bool):
             cols[k] = np.asarray([bool(v) for v in vals], dtype=bool)

@@ -40,7 +40,7 @@ from rig.topics import (
     SchemaSpec,
     Severity,
     TopicSpec,
-    encode_json,
+    encode_record,
     spec_for_topic,
     validate_json,
 )
@@ -268,7 +268,7 @@ class Source:
                 problems = validate_json(ch.schema.document, payload)
                 if problems:
                     raise ValueError(f"source {self.name!r}, topic {topic}: {'; '.join(problems)}")
-            data = encode_json(payload)
+            data = encode_record(payload)
         else:
             raise TypeError(f"source {self.name!r}: {topic} is a raw topic, payload must be bytes")
         q = self._q

@@ -57,7 +57,7 @@ from rig.topics import (
     Event,
     EventKind,
     Severity,
-    encode_json,
+    encode_record,
     flatten_metadata,
 )
 from vsccore.clock import Clock, SystemClock
@@ -627,7 +627,7 @@ class Recorder:
             self._register(part, ch)
         log_ns = max(ev.start_ns if ev.start_ns is not None else self._hub.host_to_log_time(host_ns), ch.written_log)
         ch.written_log = log_ns
-        part.writer.add_message(ch.mcap_id, log_ns, encode_json(ev.to_json()), host_ns, ch.seq & 0xFFFFFFFF)
+        part.writer.add_message(ch.mcap_id, log_ns, encode_record(ev.to_json()), host_ns, ch.seq & 0xFFFFFFFF)
         ch.seq += 1
         part.messages += 1
         self._messages += 1

@@ -246,3 +246,15 @@ def test_every_stream_is_within_a_millisecond_of_the_truth(run: Recorded) -> Non
     g = ds.gnss("rover_a")
     assert np.array_equal(g.bestpos.time_ns, ds.gps_to_utc(g.bestpos["gps_time_ns"]))
     assert run.truth_ns[0] == run.rec.world.truth_t0_utc_ns
+
+
+def test_every_json_message_validates_with_a_standard_json_schema_validator(run: Recorded) -> None:
+    """Draft 2020-12 (jsonschema), every message of every JSON topic, events and time base included."""
+    from tests.test_schemas_standard import _validate_session
+
+    checked = 0
+    for part in sorted(run.rec.summary.recording.parts):
+        n, failures = _validate_session(Path(part))
+        assert failures == [], failures[:5]
+        checked += n
+    assert checked > 1000
