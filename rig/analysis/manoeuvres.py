@@ -3,7 +3,9 @@
 Automatic segmentation works on the vehicle's own signals on one time base (speed, steering-wheel
 angle, yaw rate, lateral acceleration) and labels every sample:
 
-- LOW_SPEED: speed below ``low_speed_mps`` (default 15 km/h; parking, steering-ratio circles).
+- LOW_SPEED (low-speed manoeuvring): speed below ``low_speed_mps`` (default 15 km/h; parking,
+  steering-ratio circles). The GNSS sideslip reference is not needed (nor meaningful) there, so the
+  overall score and the reference's valid fraction leave it out (docs/manoeuvres.md).
 - STRAIGHT: at least ``min_straight_s`` of |a_y| < 0.5 m/s², |r| < 1 °/s, |SWA| < 10°.
 - Otherwise samples are *active*; active stretches closer than ``merge_gap_s`` are one event,
   padded by ``pad_s``. Each event is classified from its steering *lobes* (stretches where the
@@ -16,7 +18,10 @@ angle, yaw rate, lateral acceleration) and labels every sample:
   J_TURN                       one lobe, fast onset, speed falls by > 5 % (throttle released)
   FISHHOOK                     two lobes of opposite sign, the second held ≥ 2 s (NHTSA)
   SINE_WITH_DWELL              two lobes, fast onset, the second shorter (FMVSS 126)
-  DOUBLE_LANE_CHANGE           three or more alternating lobes within 15 s (ISO 3888)
+  LANE_CHANGE                  two lobes, slow onset, the second shorter than 2 s (ISO 3888-2)
+  SLALOM                       five or more alternating lobes, evenly spaced (their onsets'
+                               spacing varies by ≤ 20 %)
+  DOUBLE_LANE_CHANGE           three or more alternating lobes within 15 s (ISO 3888-1)
   OTHER                        anything else (curves, transitions)
   ============================ ==========================================================
 
@@ -55,6 +60,8 @@ class ManoeuvreKind(enum.StrEnum):
     STRAIGHT = "straight"
     STEADY_STATE_CORNERING = "steady_state_cornering"
     DOUBLE_LANE_CHANGE = "double_lane_change"
+    LANE_CHANGE = "lane_change"
+    SLALOM = "slalom"
     STEP_STEER = "step_steer"
     J_TURN = "j_turn"
     FISHHOOK = "fishhook"
@@ -124,6 +131,8 @@ class SegmentationParams:
     fishhook_hold_s: float = 2.0
     speed_drop_fraction: float = 0.05
     smooth_s: float = 0.1
+    slalom_min_lobes: int = 5
+    slalom_spacing_cv: float = 0.2
 
 
 @dataclass(frozen=True, slots=True)
@@ -191,7 +200,12 @@ def _classify(
             return ManoeuvreKind.FISHHOOK, f"steer, counter-steer held {dur(lobes[1]):.1f} s"
         if fast:
             return ManoeuvreKind.SINE_WITH_DWELL, "fast steer and counter-steer"
-        return ManoeuvreKind.OTHER, "steer and counter-steer (single lane change?)"
+        return ManoeuvreKind.LANE_CHANGE, "steer and counter-steer (single lane change)"
+    if n >= p.slalom_min_lobes:
+        starts = np.asarray([t[lb.start] for lb in lobes], dtype=float)
+        spacing = np.diff(starts)
+        if float(np.std(spacing)) <= p.slalom_spacing_cv * float(np.mean(spacing)):
+            return ManoeuvreKind.SLALOM, f"{n} evenly spaced alternating lobes ({float(np.mean(spacing)):.1f} s apart)"
     if float(t[j - 1] - t[i]) <= 15.0:
         return ManoeuvreKind.DOUBLE_LANE_CHANGE, f"{n} alternating steering lobes"
     return ManoeuvreKind.OTHER, f"{n} steering lobes over {float(t[j - 1] - t[i]):.0f} s"

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
+from collections.abc import Generator, Mapping
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -13,7 +18,10 @@ from rig.analysis.manoeuvres import (
     score_manoeuvres,
     segment_manoeuvres,
 )
-from sim_devices.vehicle import GroundTruth
+from sim_devices.vehicle import Drive, GroundTruth, make_scenario, simulate
+from sim_devices.vehicle.driver import PolylinePath, constant_speed
+from sim_devices.vehicle.model import Phase, VehicleState
+from sim_devices.vehicle.scenarios import SCENARIOS, Scenario, ScenarioContext, ScenarioSpec
 from vsccore.errors import AnalysisError
 
 EXPECTED = {
@@ -114,3 +122,42 @@ def test_reference_validity_is_judged_over_the_manoeuvres_that_need_it() -> None
     assert any("reference valid" in f for f in overall2.metrics.failures)
     low_kind = next(k for k in kinds if k.kind is ManoeuvreKind.LOW_SPEED)
     assert low_kind.metrics is None  # nothing to score there
+
+
+@dataclasses.dataclass(frozen=True)
+class _Slalom(Scenario):
+    """A slalom for the test (the simulator has none): sinusoidal steering at constant speed, 4 periods."""
+
+    @property
+    def spec(self) -> ScenarioSpec:
+        def run(values: Mapping[str, Any], ctx: ScenarioContext, st: VehicleState) -> Generator[Phase, Any, None]:
+            v = 60.0 / 3.6
+            line = PolylinePath.line(st.east, st.north, st.yaw, v * 3.0 + 200.0)
+            st = yield Phase(duration_s=2.0, speed=constant_speed(v), controller=ctx.follower(line),
+                             label="slalom.lead")
+            amp, f = math.radians(60.0), 0.5
+
+            def swa(tau: np.ndarray) -> np.ndarray:
+                return np.asarray(amp * np.sin(2.0 * math.pi * f * np.minimum(tau, 4.0 / f)), dtype=float)
+
+            yield Phase(duration_s=4.0 / f + 1.0, speed=constant_speed(v), swa=swa, label="slalom")
+
+        base = SCENARIOS["straight"]
+        return dataclasses.replace(base, name="slalom", title="slalom (test)", run=run,
+                                   entry=lambda _v: (60.0 / 3.6, None))
+
+
+def test_slalom_and_single_lane_change_are_recognised() -> None:
+    """Issue 16: slalom and lane change kinds, on simulated drives (the simulator labels its scenarios)."""
+    drive = Drive([make_scenario("straight", speed_kmh=60.0, duration_s=4.0),
+                   _Slalom("straight", make_scenario("straight").values),
+                   make_scenario("straight", speed_kmh=60.0, duration_s=4.0)], gap_s=3.0)
+    tr = simulate(drive, rate_hz=50.0)
+    mans = segment_manoeuvres(tr.t, tr.speed, tr.swa, tr.yaw_rate, tr.ay_meas)
+    t0 = float(tr.meta[next(k for k, v in tr.meta.items() if k.endswith(".label") and v == "slalom")
+                       .replace(".label", ".t_start_s")])
+    busy = (tr.t > t0) & (tr.t < t0 + 8.0) & (np.abs(tr.ay) > 1.0)
+    labels = np.empty(len(tr), dtype=object)
+    for m in mans:
+        labels[m.start_index : m.stop_index] = m.kind
+    assert np.mean(labels[busy] == ManoeuvreKind.SLALOM) > 0.9, [(m.kind, m.label) for m in mans]
