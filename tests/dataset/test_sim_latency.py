@@ -28,6 +28,7 @@ MISCONFIGURED_BY_S = 0.005
 
 
 def _record(out: Path, overrides: dict[str, object]) -> tuple[SessionConfig, Session]:
+    """Recorded on the governed clock (``simulation.governed``), so a busy host makes it slower, not late."""
     cfg = load_config(demo_config_path(), {"simulation.speed": 1.0, **overrides})
     rec = record_simulated(cfg, out, name="rec", drive=make_scenario("straight", speed_kmh=50.0, duration_s=2.0),
                            lead_s=2.0)
@@ -68,6 +69,7 @@ def test_can_on_the_common_time_base_within_a_millisecond_without_a_latency_argu
 ) -> None:
     cfg, ds = sessions["default"]
     assert cfg.receivers[1].output_latency_s is None
+    assert any("governed clock" in e.text for _t, e in ds.events)  # recorded on the governed clock
     # the known latency of a rover's BESTPOS: output latency + 104 bytes at 460800 Bd
     g = ds.gnss("rover_a").bestpos["gps_time_ns"][:2]
     assert ds.gnss_log_latency_ns("rover_a", "BESTPOS", g).tolist() == [20 * MS + round(104 * 10e9 / 460800)] * 2
@@ -78,6 +80,15 @@ def test_can_on_the_common_time_base_within_a_millisecond_without_a_latency_argu
     assert np.median(np.abs(_live_can_error(ds))) < 1 * MS
     assert np.abs(err).max() < 1 * MS
     assert not ds.warnings
+
+
+@pytest.mark.realtime
+def test_can_within_a_millisecond_on_the_free_running_clock(tmp_path: Path) -> None:
+    """The host's real latency (``simulation.governed = false``): only an idle host holds the 1 ms."""
+    _cfg, ds = _record(tmp_path, {"simulation.governed": False})
+    assert ds.events and not [e for _t, e in ds.events if "governed clock" in e.text]
+    assert np.abs(_can_error(ds)).max() < 1 * MS
+    assert np.median(np.abs(_live_can_error(ds))) < 1 * MS
 
 
 def test_the_receivers_configured_output_latency_is_used_live_and_offline(

@@ -1,0 +1,144 @@
+"""The governed scaled clock: simulated time waits for the slowest participant, in every process."""
+
+from __future__ import annotations
+
+import multiprocessing
+import pickle
+import threading
+import time
+from collections.abc import Iterator
+
+import can
+import pytest
+
+from sim_devices.vehicle import make_scenario, simulate
+from sim_devices.vsc_ecu import VscEcu
+from vsccore.clock import UNBOUNDED_NS, ClockGovernor, ScaledClock, participant
+
+MS = 1_000_000
+
+
+@pytest.fixture
+def governor() -> Iterator[ClockGovernor]:
+    gov = ClockGovernor.create(5 * MS, stall_limit_s=30.0)
+    yield gov
+    gov.close()
+
+
+def _wait_until(pred: object, timeout_s: float = 10.0) -> bool:
+    done = threading.Event()
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if pred():  # type: ignore[operator]
+            return True
+        done.wait(0.005)
+    return False
+
+
+def test_a_participant_that_falls_behind_holds_the_clock_at_its_progress_plus_the_budget(
+    governor: ClockGovernor,
+) -> None:
+    clock = ScaledClock(0, 100.0, governor=governor)
+    me = participant(clock, "slow device")
+    me.at(200 * MS)
+    # free-running, 100x would pass 200 ms of simulated time in 2 ms of wall time
+    assert clock.sleep_until_ns(205 * MS)
+    held = [clock.now_ns() for _ in range(50)]
+    assert all(t == 205 * MS for t in held)  # progress 200 ms + budget 5 ms, and not a ns more
+    assert governor.paused_now()
+    me.at(1000 * MS)
+    assert clock.sleep_until_ns(600 * MS)  # released: time runs again, from where it stood
+    stats = governor.stats()
+    assert stats.paused_wall_ns > 0 and stats.pauses >= 1
+    assert set(stats.blamed_wall_ns) == {"slow device"}
+    me.idle()
+    governor.release()
+    assert clock.now_ns() >= 600 * MS  # released, never below what the governed clock handed out
+
+
+def _child(clock: ScaledClock, conn: object) -> None:
+    me = participant(clock, "child device", progress_ns=50 * MS)
+    conn.send(("registered", clock.now_ns()))  # type: ignore[attr-defined]
+    conn.recv()  # type: ignore[attr-defined]
+    me.at(UNBOUNDED_NS)
+    conn.send(("released", clock.now_ns()))  # type: ignore[attr-defined]
+    conn.recv()  # type: ignore[attr-defined]
+
+
+def test_a_participant_in_another_process_holds_the_same_clock(governor: ClockGovernor) -> None:
+    clock = ScaledClock(0, 1000.0, governor=governor)
+    ctx = multiprocessing.get_context("spawn")
+    parent, child = ctx.Pipe()
+    proc = ctx.Process(target=_child, args=(clock, child))
+    proc.start()
+    try:
+        assert parent.poll(240.0)  # a spawned interpreter imports slowly on a loaded host
+        assert parent.recv()[0] == "registered"
+        # 1000x: a second of wall time would be 1000 s; the child's participant holds it at 55 ms
+        assert _wait_until(governor.paused_now)
+        assert clock.now_ns() == 55 * MS
+        parent.send("release")
+        assert parent.poll(30.0)
+        what, t_child = parent.recv()
+        assert what == "released" and t_child >= 55 * MS
+        assert _wait_until(lambda: clock.now_ns() > 500 * MS)
+        parent.send("end")
+    finally:
+        proc.join(30.0)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+    assert proc.exitcode == 0
+    copy = pickle.loads(pickle.dumps(clock))
+    assert copy.now_ns() >= clock.now_ns() - 1_000 * MS  # the same clock, not a new one from 0
+    copy.governor.close()  # type: ignore[union-attr]
+
+
+def test_a_participant_stalled_past_the_limit_is_released() -> None:
+    gov = ClockGovernor.create(1 * MS, stall_limit_s=0.05)
+    try:
+        clock = ScaledClock(0, 10.0, governor=gov)
+        me = participant(clock, "gone reader", progress_ns=0)
+        assert clock.now_ns() <= 1 * MS
+        assert _wait_until(lambda: clock.now_ns() > 100 * MS, 5.0)
+        assert gov.stats().ignored == 1
+        me.at(clock.now_ns())  # it came back: governed again
+        t = clock.now_ns()
+        assert _wait_until(lambda: gov.paused_now(), 5.0)
+        assert clock.now_ns() <= max(t, me.progress_ns + 1 * MS)
+    finally:
+        gov.close()
+
+
+def test_the_ecu_waits_for_a_reader_that_does_not_read(governor: ClockGovernor) -> None:
+    """A CAN reader that takes no frame holds simulated time at the first unread frame + the budget,
+    so no frame is ever received late in simulated time (the ECU skips none either)."""
+    truth = simulate(make_scenario("straight", speed_kmh=50.0, duration_s=1.0))
+    clock = ScaledClock(0, 20.0, governor=governor)
+    tx = can.Bus(interface="virtual", channel="governor-test", preserve_timestamps=True)
+    rx = can.Bus(interface="virtual", channel="governor-test", preserve_timestamps=True)
+    reader = participant(clock, "canrx:test", progress_ns=UNBOUNDED_NS)
+    reader.set_value(-1)
+    ecu = VscEcu(truth, tx, clock, 10 * MS, reader="canrx:test", name="ecu:test")
+    ecu.start()
+    try:
+        first = rx.recv(10.0)
+        assert first is not None
+        first_ns = round(first.timestamp * 1e9)
+        assert _wait_until(governor.paused_now)
+        assert clock.now_ns() <= first_ns + 5 * MS + 2_000
+        # now read every frame as it comes, and publish how far we got: the drive runs to its end
+        late = 0
+        while not ecu.finished.is_set() or rx.recv(0) is not None:
+            msg = rx.recv(0.05)
+            if msg is None:
+                continue
+            stamp = round(msg.timestamp * 1e9)
+            late = max(late, clock.now_ns() - stamp)
+            reader.set_value(stamp)
+        assert ecu.frames_skipped == 0 and ecu.frames_sent > 100
+        assert late <= 5 * MS + 2_000 + 1 * MS  # budget, stamp rounding, and the step to the next frame
+    finally:
+        ecu.stop()
+        tx.shutdown()
+        rx.shutdown()
