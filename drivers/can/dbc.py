@@ -4,10 +4,15 @@ cantools reports a syntax error as ``UnsupportedDatabaseFormatError`` wrapping a
 error that knows the line and column; semantic errors (overlapping signals, a signal outside its
 message) carry only a message. Both become :class:`~vsccore.errors.ConfigError` naming the file
 and, where it can be found, the line.
+
+A signal whose bits run past its message's length (a DBC edited by hand, a length cut from 8 to 6
+bytes) is accepted by cantools when not ``strict`` and decodes silently from zero padding; the
+loader logs one warning per database naming every such signal (:func:`signals_outside_message`).
 """
 
 from __future__ import annotations
 
+import logging
 import re
 from pathlib import Path
 
@@ -15,7 +20,9 @@ from cantools.database.can import Database
 
 from vsccore.errors import ConfigError
 
-__all__ = ["dbc_text_line_of", "load_dbc", "parse_dbc_text"]
+__all__ = ["dbc_text_line_of", "load_dbc", "parse_dbc_text", "signal_last_byte", "signals_outside_message"]
+
+log = logging.getLogger(__name__)
 
 
 def load_dbc(path: str | Path, *, strict: bool = False) -> Database:
@@ -46,7 +53,40 @@ def parse_dbc_text(text: str, *, source: str = "<dbc>", strict: bool = False) ->
         db.add_dbc_string(text)
     except Exception as exc:  # cantools raises many types here (its own, ValueError, KeyError...)
         raise ConfigError(_describe(exc, text, source)) from exc
+    outside = signals_outside_message(db)
+    if outside:
+        where = []
+        for name in outside:
+            line = dbc_text_line_of(text, name.partition(".")[2])
+            where.append(f"{name} (line {line})" if line else name)
+        log.warning(
+            "%s: %d DBC signal%s lie%s outside %s message's length and would decode from zero padding: %s",
+            source, len(outside), "s" if len(outside) != 1 else "", "" if len(outside) != 1 else "s",
+            "their" if len(outside) != 1 else "its", ", ".join(where),
+        )
     return db
+
+
+def signal_last_byte(start: int, length: int, byte_order: str) -> int:
+    """0-based index of the last payload byte a signal occupies (DBC start bit, length, byte order).
+
+    Intel (``little_endian``): bits ``start … start+length-1``; Motorola (``big_endian``): ``start``
+    is the most significant bit in DBC numbering, and the signal runs on towards later bytes.
+    """
+    if byte_order == "big_endian":
+        msb = (start // 8) * 8 + (7 - start % 8)
+        return (msb + length - 1) // 8
+    return (start + length - 1) // 8
+
+
+def signals_outside_message(db: Database) -> list[str]:
+    """``MESSAGE.SIGNAL`` of every signal whose bits run past its message's length, in DBC order."""
+    out: list[str] = []
+    for message in db.messages:
+        for signal in message.signals:
+            if signal_last_byte(signal.start, signal.length, signal.byte_order) >= message.length:
+                out.append(f"{message.name}.{signal.name}")
+    return out
 
 
 def _describe(exc: BaseException, text: str, source: str) -> str:

@@ -5,13 +5,18 @@ Output layouts (documented in docs/can.md):
 
 - CSV, long format, one row per value, in time order::
 
-      t_s,message,signal,value,unit,label,flags      (all DBC signals, DBC units)
-      t_s,message,role,value,unit,label,flags        (--roles: SI units, ISO 8855 signs)
+      t_s,channel,message,signal,value,unit,label,flags      (all DBC signals, DBC units)
+      t_s,channel,message,role,value,unit,label,flags        (--roles: SI units, ISO 8855 signs)
+
+  ``channel`` is the frame's channel as the log names it (Vector: 1, 2, …; candump: can0), empty
+  when the log has none. Each channel is decoded on its own (its counters and checksums), with the
+  DBC (and roles) that ``--channel-map`` gives it, or the one ``--dbc``/``--roles`` give them all;
+  ``--channel`` keeps only the channels named.
 
   A frame with a frame-level flag (wrong length, checksum, counter, undecodable multiplexer)
   gives one row with empty name and value and the flags, e.g. ``CHECKSUM``.
 - JSON lines, one object per frame:
-  ``{"t_ns": …, "t_s": "…", "message": …, "id": …, "flags": [...], "values": {...},
+  ``{"t_ns": …, "t_s": "…", "channel": …, "message": …, "id": …, "flags": [...], "values": {...},
   "units": {...}, "labels": {...}, "invalid": [...]}`` (NaN → null).
 
 Frames with identifiers not in the DBC are counted in the summary on stderr, not written.
@@ -62,6 +67,7 @@ class _Row:
 
     t_ns: int
     index: int  # row in the frame batch: the output keeps the log's frame order
+    channel: str
     message: str
     frame_id: int
     flags: int
@@ -82,7 +88,8 @@ def _value_text(v: float) -> str:
     return "" if math.isnan(v) else repr(float(v))
 
 
-def _signal_rows(decoded: DecodedMessage) -> Iterator[_Row]:
+def _signal_rows(decoded: DecodedMessage, channel: str = "", rows: list[int] | None = None) -> Iterator[_Row]:
+    """Rows of one message; ``rows`` maps the decoded batch's indices to the whole log's (channel sub-batches)."""
     from drivers.can.checks import FrameFlag
 
     names = list(decoded.values)
@@ -92,8 +99,9 @@ def _signal_rows(decoded: DecodedMessage) -> Iterator[_Row]:
     flags = decoded.flags.tolist()
     frame_level = int(FrameFlag.frame_level())
     for i, (t, b) in enumerate(zip(decoded.timestamps_ns.tolist(), decoded.batch_index.tolist(), strict=True)):
+        b = b if rows is None else rows[b]
         if flags[i] & frame_level:
-            yield _Row(t, b, decoded.name, decoded.frame_id, flags[i], {}, {}, {}, ())
+            yield _Row(t, b, channel, decoded.name, decoded.frame_id, flags[i], {}, {}, {}, ())
             continue
         row_values = {n: values[n][i] for n in names if present[n][i]}
         labels = {}
@@ -104,10 +112,12 @@ def _signal_rows(decoded: DecodedMessage) -> Iterator[_Row]:
                 if label is not None:
                     labels[n] = label
         units = {n: decoded.units.get(n, "") for n in row_values}
-        yield _Row(t, b, decoded.name, decoded.frame_id, flags[i], row_values, units, labels, ())
+        yield _Row(t, b, channel, decoded.name, decoded.frame_id, flags[i], row_values, units, labels, ())
 
 
-def _role_rows_for_message(result: RoleBatch, rolemap: RoleMap, message: str) -> Iterator[_Row]:
+def _role_rows_for_message(
+    result: RoleBatch, rolemap: RoleMap, message: str, channel: str = "", rows: list[int] | None = None
+) -> Iterator[_Row]:
     from drivers.can.checks import FrameFlag
 
     decoded = result.messages[message]
@@ -130,7 +140,7 @@ def _role_rows_for_message(result: RoleBatch, rolemap: RoleMap, message: str) ->
     flags = decoded.flags.tolist()
     for i, (t, b) in enumerate(zip(decoded.timestamps_ns.tolist(), decoded.batch_index.tolist(), strict=True)):
         if flags[i] & frame_level:
-            yield _Row(t, b, message, decoded.frame_id, flags[i], {}, {}, {}, ())
+            yield _Row(t, b if rows is None else rows[b], channel, message, decoded.frame_id, flags[i], {}, {}, {}, ())
             continue
         values: dict[str, float] = {}
         units: dict[str, str] = {}
@@ -147,7 +157,8 @@ def _role_rows_for_message(result: RoleBatch, rolemap: RoleMap, message: str) ->
                 labels[role] = label
             if role_flags[j] & int(FrameFlag.INVALID):
                 invalid.append(role)
-        yield _Row(t, b, message, decoded.frame_id, flags[i], values, units, labels, tuple(invalid))
+        yield _Row(t, b if rows is None else rows[b], channel, message, decoded.frame_id, flags[i], values, units,
+                   labels, tuple(invalid))
 
 
 def _merge(streams: list[Iterator[_Row]]) -> Iterator[_Row]:
@@ -167,17 +178,18 @@ def _write_csv(rows: Iterator[_Row], out: IO[str], name_column: str) -> int:
     from drivers.can.checks import FrameFlag
 
     writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(["t_s", "message", name_column, "value", "unit", "label", "flags"])
+    writer.writerow(["t_s", "channel", "message", name_column, "value", "unit", "label", "flags"])
     count = 0
     for row in rows:
         t = _t_s(row.t_ns)
         if not row.values and row.flags:
-            writer.writerow([t, row.message, "", "", "", "", _flag_text(row.flags)])
+            writer.writerow([t, row.channel, row.message, "", "", "", "", _flag_text(row.flags)])
         for name, value in row.values.items():
             flags = row.flags | (int(FrameFlag.INVALID) if name in row.invalid else 0)
             writer.writerow(
                 [
                     t,
+                    row.channel,
                     row.message,
                     name,
                     _value_text(value),
@@ -198,6 +210,7 @@ def _write_jsonl(rows: Iterator[_Row], out: IO[str]) -> int:
         record = {
             "t_ns": row.t_ns,
             "t_s": _t_s(row.t_ns),
+            "channel": row.channel,
             "message": row.message,
             "id": row.frame_id,
             "flags": FrameFlag(row.flags).names(),
@@ -261,6 +274,58 @@ def _load_roles(roles: Path, dbc: Path | None, bus: str | None) -> tuple[Databas
     return db, RoleMap.from_toml(roles, db)
 
 
+@dataclass(frozen=True, slots=True)
+class _ChannelDecoding:
+    """How one log channel is decoded: its DBC and, for roles output, its role map."""
+
+    db: Database
+    rolemap: RoleMap | None
+
+
+def _load_channel_map(path: Path) -> dict[str, _ChannelDecoding]:
+    """``--channel-map``: ``[channels.<channel>]`` tables with ``dbc`` and optional ``roles`` (and ``bus``).
+
+    Paths are relative to the map file (or ``pkg:package/file``); ``roles`` is a roles file or a
+    session configuration (then ``bus`` names its ``[[can]]`` bus, and ``dbc`` defaults to that bus's).
+    """
+    from drivers.can.dbc import load_dbc
+
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: channel map not found") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: TOML syntax error: {exc}") from None
+    table = doc.get("channels")
+    if not isinstance(table, dict) or not table:
+        raise ConfigError(f'{path}: no [channels."<channel>"] tables (e.g. [channels."1"] dbc = "powertrain.dbc")')
+    out: dict[str, _ChannelDecoding] = {}
+    for name, entry in table.items():
+        key = f"{path}: channels.{name}"
+        if not isinstance(entry, dict):
+            raise ConfigError(f"{key}: must be a table with dbc = ... (and optionally roles = ...)")
+        unknown = sorted(set(entry) - {"dbc", "roles", "bus"})
+        if unknown:
+            raise ConfigError(f"{key}: unknown key(s) {', '.join(unknown)} (allowed: dbc, roles, bus)")
+        for k in ("dbc", "roles", "bus"):
+            if k in entry and not isinstance(entry[k], str):
+                raise ConfigError(f"{key}.{k}: must be a string, got {entry[k]!r}")
+        dbc = _dbc_beside(path, entry["dbc"]) if "dbc" in entry else None
+        if "roles" in entry:
+            db, rolemap = _load_roles(_dbc_beside(path, entry["roles"]), dbc, entry.get("bus"))
+            out[str(name)] = _ChannelDecoding(db, rolemap)
+        elif dbc is not None:
+            out[str(name)] = _ChannelDecoding(load_dbc(dbc), None)
+        else:
+            raise ConfigError(f"{key}: give dbc = \"FILE.dbc\" (or roles = ...)")
+    kinds = {d.rolemap is None for d in out.values()}
+    if len(kinds) > 1:
+        raise ConfigError(f"{path}: give roles for every channel or for none (one output layout for the log)")
+    return out
+
+
 @app.command("decode")
 def decode(
     log: Annotated[Path, typer.Argument(help="CAN log: candump .log, .asc, .blf, .trc, .csv, .db, .mf4 (or .gz).")],
@@ -273,34 +338,79 @@ def decode(
         typer.Option("--roles", help="Roles file or session config: output roles in SI instead of all signals."),
     ] = None,
     bus: Annotated[str | None, typer.Option("--bus", help="[[can]] bus name when --roles has several.")] = None,
+    channel: Annotated[
+        list[str] | None,
+        typer.Option("--channel", help="Decode only this log channel (repeatable): Vector 1, 2, …; candump can0."),
+    ] = None,
+    channel_map: Annotated[
+        Path | None,
+        typer.Option("--channel-map", help='TOML giving each log channel its DBC (and roles): [channels."1"] '
+                     'dbc = "powertrain.dbc", roles = "roles.toml". Instead of --dbc/--roles.'),
+    ] = None,
     fmt: Annotated[OutputFormat, typer.Option("--format", help="Output format.")] = OutputFormat.CSV,
     out: Annotated[Path | None, typer.Option("--out", help="Output file (default: standard output).")] = None,
 ) -> None:
-    """Decode LOG with a DBC: every signal (DBC units), or with --roles the mapped roles in SI units."""
+    """Decode LOG with a DBC: every signal (DBC units), or with --roles the mapped roles in SI units.
+
+    Every channel of a multi-channel log is decoded on its own; --channel-map gives each its DBC.
+    """
+    import numpy as np
+
     from drivers.can.dbc import load_dbc
     from drivers.can.logs import read_log
-    from drivers.can.vector_decode import VectorDecoder, VectorRoleDecoder
+    from drivers.can.vector_decode import FrameBatch, VectorDecoder, VectorRoleDecoder
 
-    rolemap: RoleMap | None = None
-    if roles is not None:
-        db, rolemap = _load_roles(roles, dbc, bus)
+    per_channel: dict[str, _ChannelDecoding] | None = None
+    common: _ChannelDecoding | None = None
+    if channel_map is not None:
+        if dbc is not None or roles is not None:
+            raise ConfigError("rig can decode: give either --channel-map or --dbc/--roles, not both")
+        per_channel = _load_channel_map(channel_map)
+    elif roles is not None:
+        common = _ChannelDecoding(*_load_roles(roles, dbc, bus))
     elif dbc is not None:
-        db = load_dbc(dbc)
+        common = _ChannelDecoding(load_dbc(dbc), None)
     else:
-        raise ConfigError("rig can decode: give --dbc FILE (or --roles with a session configuration)")
+        raise ConfigError("rig can decode: give --dbc FILE (or --roles with a session configuration, or --channel-map)")
     contents = read_log(log)
     batch = contents.batch
-    result: BatchDecode | RoleBatch
-    if rolemap is not None:
-        result = VectorRoleDecoder(db, rolemap).decode(batch)
-        names = [m for m in rolemap.messages if m in result.messages and rolemap.roles_for_message(m)]
-        streams = [_role_rows_for_message(result, rolemap, m) for m in names]
-        name_column = "role"
+    channels_of_frames = contents.channels or ("",) * len(batch)
+    in_log = list(dict.fromkeys(channels_of_frames))
+    if channel:
+        missing = [c for c in channel if c not in in_log]
+        if missing:
+            raise ConfigError(f"{log}: no frames on channel(s) {', '.join(missing)} (channels in the log: "
+                              f"{', '.join(repr(c) for c in in_log) or 'none'})")
+        selected = [c for c in in_log if c in channel]
     else:
-        result = VectorDecoder(db).decode(batch)
-        streams = [_signal_rows(d) for d in result.messages.values()]
-        name_column = "signal"
-    rows = _merge(streams)
+        selected = in_log
+    unmapped: dict[str, int] = {}
+    streams: list[Iterator[_Row]] = []
+    results: list[BatchDecode | RoleBatch] = []
+    ch_array = np.asarray(channels_of_frames, dtype=object)
+    with_roles = False
+    for ch in selected:
+        decoding = common if per_channel is None else per_channel.get(ch)
+        rows = np.flatnonzero(ch_array == ch) if len(in_log) > 1 else None
+        if decoding is None:
+            unmapped[ch] = len(batch) if rows is None else int(rows.size)
+            continue
+        sub = batch if rows is None else FrameBatch(batch.timestamps_ns[rows], batch.ids[rows], batch.data[rows],
+                                                    batch.dlc[rows])
+        index = None if rows is None else rows.tolist()
+        result: BatchDecode | RoleBatch
+        if decoding.rolemap is not None:
+            with_roles = True
+            rolemap = decoding.rolemap
+            result = VectorRoleDecoder(decoding.db, rolemap).decode(sub)
+            names = [m for m in rolemap.messages if m in result.messages and rolemap.roles_for_message(m)]
+            streams += [_role_rows_for_message(result, rolemap, m, ch, index) for m in names]
+        else:
+            result = VectorDecoder(decoding.db).decode(sub)
+            streams += [_signal_rows(d, ch, index) for d in result.messages.values()]
+        results.append(result)
+    name_column = "role" if with_roles else "signal"
+    merged = _merge(streams)
     with ExitStack() as stack:
         if out is None:
             stream: IO[str] = sys.stdout
@@ -309,8 +419,11 @@ def decode(
                 stream = stack.enter_context(out.open("w", encoding="utf-8", newline=""))
             except OSError as exc:
                 raise SessionFileError(f"{out}: cannot write: {exc.strerror or exc}") from None
-        written = _write_csv(rows, stream, name_column) if fmt is OutputFormat.CSV else _write_jsonl(rows, stream)
-    _summary(log, len(batch), written, result, contents.error_frames + contents.remote_frames)
+        written = _write_csv(merged, stream, name_column) if fmt is OutputFormat.CSV else _write_jsonl(merged, stream)
+    skipped_channels = sum(n for c, n in zip(*np.unique(ch_array, return_counts=True), strict=True)
+                           if c not in selected) if len(batch) else 0
+    _summary(log, len(batch), written, results, contents.error_frames + contents.remote_frames,
+             in_log if len(in_log) > 1 else [], unmapped, int(skipped_channels))
 
 
 def _id_text(key: int) -> str:
@@ -322,22 +435,41 @@ def _id_text(key: int) -> str:
     return f"0x{key:X}"
 
 
-def _summary(log: Path, frames: int, written: int, result: BatchDecode | RoleBatch, skipped: int) -> None:
+def _summary(
+    log: Path,
+    frames: int,
+    written: int,
+    results: list[BatchDecode | RoleBatch],
+    skipped: int,
+    channels: list[str] | None = None,
+    unmapped: dict[str, int] | None = None,
+    not_selected: int = 0,
+) -> None:
     import numpy as np
 
     from drivers.can.checks import FrameFlag
 
     flagged: dict[str, int] = {}
-    for decoded in result.messages.values():
-        for value, count in zip(*np.unique(decoded.flags, return_counts=True), strict=True):
-            for name in FrameFlag(int(value)).names():
-                flagged[name] = flagged.get(name, 0) + int(count)
-    unknown_frames = sum(result.unknown_ids.values())
+    unknown_ids: dict[int, int] = {}
+    for result in results:
+        for decoded in result.messages.values():
+            for value, count in zip(*np.unique(decoded.flags, return_counts=True), strict=True):
+                for name in FrameFlag(int(value)).names():
+                    flagged[name] = flagged.get(name, 0) + int(count)
+        for key, n in result.unknown_ids.items():
+            unknown_ids[key] = unknown_ids.get(key, 0) + n
+    unknown_frames = sum(unknown_ids.values())
     parts = [f"{log}: {frames} frames, {written} decoded frames written"]
+    if channels:
+        parts.append(f"channels {', '.join(channels)}")
+    if not_selected:
+        parts.append(f"{not_selected} frames on channels not selected")
+    for ch, n in (unmapped or {}).items():
+        parts.append(f"{n} frames on channel {ch!r} not decoded (not in the channel map)")
     if unknown_frames:
-        top = sorted(result.unknown_ids.items(), key=lambda kv: -kv[1])[:5]
+        top = sorted(unknown_ids.items(), key=lambda kv: -kv[1])[:5]
         ids = ", ".join(f"{_id_text(i)}×{n}" for i, n in top)
-        parts.append(f"{unknown_frames} with ids not in the DBC ({ids}{', …' if len(result.unknown_ids) > 5 else ''})")
+        parts.append(f"{unknown_frames} with ids not in the DBC ({ids}{', …' if len(unknown_ids) > 5 else ''})")
     if flagged:
         parts.append("flagged: " + ", ".join(f"{k} {v}" for k, v in sorted(flagged.items())))
     if skipped:

@@ -118,7 +118,7 @@ def test_csv_rows_carry_si_values_units_labels_and_flags(messages: list[can.Mess
     _decode(["--roles", str(ROLES), "--out", str(out), str(log)])
     with out.open(newline="") as fh:
         rows = list(csv.DictReader(fh))
-    assert list(rows[0]) == ["t_s", "message", "role", "value", "unit", "label", "flags"]
+    assert list(rows[0]) == ["t_s", "channel", "message", "role", "value", "unit", "label", "flags"]
     expected = _reference(messages)
     assert len(rows) == sum(len(v) or 1 for *_, v in expected)
     yaw = [r for r in rows if r["role"] == "yaw_rate"]
