@@ -7,6 +7,10 @@ While recording, :class:`rig.dashboard.Dashboard` shows every device on a termin
 Enter records an operator mark on ``/rig/events`` at the time of the key press); otherwise a status
 line is printed every few seconds. Ctrl-C or SIGTERM stop the session cleanly: devices stopped,
 file finalized.
+
+``--live`` also serves the session live (:mod:`rig.live`): Foxglove WebSocket on 127.0.0.1:8765
+(``--live-port``), the status page for a phone on the next port; ``--live-bind ADDR`` with
+``--live-token`` (or ``RIG_LIVE_TOKEN``) for a phone or tablet on the car's network.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from vsccore.errors import ConfigError
 if TYPE_CHECKING:
     from rig.config import SessionConfig
     from rig.dashboard import Dashboard
+    from rig.live import LiveOptions, LiveView
     from rig.session import RecordSession, SessionSummary
 
 # the recorder and the simulator are imported by the commands that use them (``rig --help`` stays fast)
@@ -75,6 +80,52 @@ def _dashboard(enabled: bool) -> Iterator[Callable[[RecordSession], None]]:
             dash.stop()
 
 
+LiveFlag = Annotated[bool, typer.Option("--live", help="Serve the session live: Foxglove WebSocket and a status page.")]
+LivePort = Annotated[int, typer.Option("--live-port", min=0, max=65535,
+                                       help="Foxglove WebSocket port of --live (0: any free port).")]
+LiveBind = Annotated[str, typer.Option("--live-bind", help="Address --live listens on; not a loopback address "
+                                                          "(a phone on the car's network) needs --live-token.")]
+LiveToken = Annotated[str | None, typer.Option("--live-token", help="Token of the live view (env RIG_LIVE_TOKEN); "
+                                                                   "the status page asks for it (?token=...).")]
+LiveStatusPort = Annotated[int | None, typer.Option("--live-status-port", min=0, max=65535,
+                                                    help="Port of the status page (default: --live-port + 1).")]
+LiveFullRate = Annotated[bool, typer.Option("--live-full-rate",
+                                            help="Serve every message live (default: plot channels at <= 50 Hz).")]
+
+
+def _live_options(
+    live: bool, port: int, bind: str, token: str | None, status_port: int | None, full_rate: bool
+) -> LiveOptions | None:
+    """The live view's options (checked before any device starts), or None without --live."""
+    if not live:
+        return None
+    from rig.live import LiveOptions
+
+    return LiveOptions.from_cli(port, bind, token, status_port=status_port, full_rate=full_rate)
+
+
+@contextmanager
+def _live(options: LiveOptions | None) -> Iterator[Callable[[RecordSession], None]]:
+    """Yields the call that attaches the live view to the recording session; stops it on exit."""
+    views: list[LiveView] = []
+
+    def attach(session: RecordSession) -> None:
+        if options is None:
+            return
+        from rig.live import LiveView
+
+        view = LiveView(options)
+        view.attach(session)
+        views.append(view)
+        typer.echo(f"live: Foxglove {view.ws_url}  status page {view.page_url}", err=True)
+
+    try:
+        yield attach
+    finally:
+        for view in views:
+            view.detach()
+
+
 def _report(summary: SessionSummary, stopped_by: str | None) -> None:
     from rig.session import summary_lines
 
@@ -96,6 +147,12 @@ def record(
     ] = None,
     duration: Annotated[float | None, typer.Option("--duration", min=0.0, help="Stop after this many seconds.")] = None,
     no_dashboard: Annotated[bool, typer.Option("--no-dashboard", help="Plain status lines, no live view.")] = False,
+    live: LiveFlag = False,
+    live_port: LivePort = 8765,
+    live_bind: LiveBind = "127.0.0.1",
+    live_token: LiveToken = None,
+    live_status_port: LiveStatusPort = None,
+    live_full_rate: LiveFullRate = False,
 ) -> None:
     """Record every device of CONFIG (receivers, correction relay, CAN, DAQ) into one MCAP session file
     until Ctrl-C, SIGTERM or --duration."""
@@ -110,12 +167,14 @@ def record(
             f"{config}: receivers {simulated} are simulated (sim://); record them with `rig sim record {config}`"
         )
     _check_free_space(cfg, out)  # before any device is set up
+    live_opts = _live_options(live, live_port, live_bind, live_token, live_status_port, live_full_rate)
     stop = threading.Event()
     session = RecordSession(cfg, out_dir=out, name=name, config_path=config)
-    with _stop_on_signals(stop) as got:
+    with _stop_on_signals(stop) as got, _live(live_opts) as attach_live:
         session.start()
         typer.echo(f"recording {session.name} to {session.base}.000.mcap (Ctrl-C to stop)", err=True)
         try:
+            attach_live(session)
             with _dashboard(not no_dashboard) as tick:
                 session.run(stop, duration_s=duration, tick=lambda: tick(session))
         finally:
@@ -147,6 +206,12 @@ def sim_record(
                  "itself and the clock can run faster; --one-process keeps everything in one process.",
         ),
     ] = True,
+    live: LiveFlag = False,
+    live_port: LivePort = 8765,
+    live_bind: LiveBind = "127.0.0.1",
+    live_token: LiveToken = None,
+    live_status_port: LiveStatusPort = None,
+    live_full_rate: LiveFullRate = False,
 ) -> None:
     """Record a simulated session: the simulated car of CONFIG with every device on pseudo-terminals, a
     virtual CAN bus and the simulated DAQ, through the real recording path, until the drive ends."""
@@ -163,11 +228,18 @@ def sim_record(
     if fast:
         factor = max(factor, FAST_SPEED)
     _check_free_space(cfg, out)  # before the simulated world and its devices start
+    live_opts = _live_options(live, live_port, live_bind, live_token, live_status_port, live_full_rate)
     stop = threading.Event()
-    with _stop_on_signals(stop) as got, _dashboard(not no_dashboard) as tick:
+
+    with _stop_on_signals(stop) as got, _dashboard(not no_dashboard) as tick, _live(live_opts) as attach_live:
+
+        def started(s: RecordSession) -> None:
+            typer.echo(f"recording {s.name} to {s.base}.000.mcap (Ctrl-C to stop)", err=True)
+            attach_live(s)
+
         result = record_simulated(
             cfg, out, name=name, speed=factor, stop=stop, tick=tick, config_path=config, device_process=device_process,
-            on_started=lambda s: typer.echo(f"recording {s.name} to {s.base}.000.mcap (Ctrl-C to stop)", err=True),
+            on_started=started,
         )
     world = result.world
     typer.echo(

@@ -332,6 +332,9 @@ class Recorder:
         self._host = socket.gethostname()
         self._reserve = reserve_path(self._base)
         self._reserve_fd: int | None = None
+        self.tap: Callable[[str, int, int, bytes], None] | None = None
+        """Called on the writer thread with (topic, log_time, publish_time, data) of every message written
+        (a live view, :mod:`rig.live`); it must not block (append to a bounded queue) and must not raise."""
 
     # --- public API ------------------------------------------------------------------------------
 
@@ -575,6 +578,7 @@ class Recorder:
         add = part.writer.add_message
         epoch = self._epoch
         batch = self._opts.batch
+        tap = self.tap
         total = 0
         for src in self._hub.sources:
             q = src._q
@@ -585,13 +589,12 @@ class Recorder:
                 try:
                     for i in range(n):  # noqa: B007 - read in the except clause
                         ch, log_ns, pub_ns, data = pop()
-                        if log_ns < ch.written_log:  # several producers (events): the writer's order decides
-                            log_ns = ch.written_log
-                        ch.written_log = log_ns
                         if ch.epoch != epoch:
                             self._register(part, ch)
                         add(ch.mcap_id, log_ns, data, pub_ns, ch.seq & 0xFFFFFFFF)
                         ch.seq += 1
+                        if tap is not None:
+                            tap(ch.topic, log_ns, pub_ns, data)
                 except BaseException:
                     # a write failed inside add (a chunk going out): count what this round handed over,
                     # the message in hand included, so the loss is measured against the file afterwards
@@ -625,10 +628,13 @@ class Recorder:
         ch = self._hub.channel(TOPIC_EVENTS)
         if ch.epoch != self._epoch:
             self._register(part, ch)
-        log_ns = max(ev.start_ns if ev.start_ns is not None else self._hub.host_to_log_time(host_ns), ch.written_log)
-        ch.written_log = log_ns
-        part.writer.add_message(ch.mcap_id, log_ns, encode_record(ev.to_json()), host_ns, ch.seq & 0xFFFFFFFF)
+        log_ns = ev.start_ns if ev.start_ns is not None else self._hub.host_to_log_time(host_ns)
+        data = encode_record(ev.to_json())
+        part.writer.add_message(ch.mcap_id, log_ns, data, host_ns, ch.seq & 0xFFFFFFFF)
         ch.seq += 1
+        tap = self.tap
+        if tap is not None:
+            tap(ch.topic, log_ns, host_ns, data)
         part.messages += 1
         self._messages += 1
         self._dirty = True

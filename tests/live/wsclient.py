@@ -1,0 +1,74 @@
+"""A minimal Foxglove WebSocket protocol client on the ``websockets`` package: advertise → subscribe →
+binary message data, as the Foxglove app does it.
+
+The protocol is ``foxglove.websocket.v1``; foxglove-sdk 0.30's server accepts it under its new name
+``foxglove.sdk.v1`` only (same messages), and the client offers both."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import struct
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from websockets.asyncio.client import connect
+from websockets.typing import Subprotocol
+
+SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
+OP_MESSAGE_DATA = 0x01
+_MSG_HEADER = struct.Struct("<BIQ")  # opcode, subscription id, log time (ns)
+
+
+@dataclass
+class Received:
+    advertised: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """topic → channel advertisement (id, encoding, schemaName, schema, schemaEncoding)."""
+    messages: dict[str, list[tuple[int, bytes]]] = field(default_factory=dict)
+    """topic → (log time ns, payload) in arrival order."""
+    server_info: dict[str, Any] = field(default_factory=dict)
+    subprotocol: str = ""
+
+
+async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_s: float) -> Received:
+    out = Received()
+    subs: dict[int, str] = {}
+    deadline = time.monotonic() + timeout_s
+    async with connect(url, subprotocols=[Subprotocol(p) for p in SUBPROTOCOLS], max_size=None) as ws:
+        assert ws.subprotocol in SUBPROTOCOLS
+        out.subprotocol = str(ws.subprotocol)
+        while True:
+            if all(len(out.messages.get(t, ())) >= counts.get(t, 1) for t in topics):
+                return out
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return out
+            try:
+                frame = await asyncio.wait_for(ws.recv(), left)
+            except TimeoutError:
+                return out
+            if isinstance(frame, str):
+                msg = json.loads(frame)
+                if msg["op"] == "serverInfo":
+                    out.server_info = msg
+                elif msg["op"] == "advertise":
+                    new = []
+                    for ch in msg["channels"]:
+                        out.advertised[ch["topic"]] = ch
+                        if ch["topic"] in topics and ch["id"] not in subs.values():
+                            sid = len(subs) + 1
+                            subs[sid] = ch["topic"]
+                            new.append({"id": sid, "channelId": ch["id"]})
+                    if new:
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
+            else:
+                op, sid, log_ns = _MSG_HEADER.unpack_from(frame)
+                if op == OP_MESSAGE_DATA and sid in subs:
+                    out.messages.setdefault(subs[sid], []).append((log_ns, bytes(frame[_MSG_HEADER.size:])))
+
+
+def collect(url: str, topics: list[str], counts: dict[str, int] | None = None, timeout_s: float = 30.0) -> Received:
+    """Connect, subscribe to ``topics`` as they are advertised, and read until each has ``counts[topic]``
+    messages (default 1) or ``timeout_s`` passed."""
+    return asyncio.run(_collect(url, topics, counts or {}, timeout_s))
