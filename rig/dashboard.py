@@ -202,8 +202,11 @@ class Dashboard:
 
     def _run_plain(self) -> None:
         while not self._stop.wait(self._plain_s):
-            snap = self._board.snapshot(self._clock.now_ns())
-            for a in alarm_lines(snap):
-                self._console.print(a, highlight=False)
-            self._console.print(status_line(snap), highlight=False)
-        self._console.print(status_line(self._board.snapshot(self._clock.now_ns())), highlight=False)
+            self._print_plain()
+        self._print_plain()
+
+    def _print_plain(self) -> None:
+        snap = self._board.snapshot(self._clock.now_ns())
+        for a in alarm_lines(snap):
+            self._console.print(a, highlight=False)
+        self._console.print(status_line(snap), highlight=False)

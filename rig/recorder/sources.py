@@ -15,8 +15,10 @@ uses them (one source per device).
 message's ``log_time`` with the channel's last one and appends, and a message whose time runs back
 is queued at the channel's last time instead — *clamped*, counted per channel
 (:class:`ChannelTiming`), and reported on ``/rig/events`` (one ``timebase`` event per channel and
-second of log time, with the count and the largest step back). The writer keeps the same floor for
-the recorder's own events, which it writes directly. The same pass learns each periodic channel's
+second of log time, with the count and the largest step back). ``/rig/events`` itself is exempt: an
+event's ``log_time`` *is* the time it is about (an operator mark's key press, a gap's start, the
+first drop of an overflow), which often comes after later ones were written; moving it would
+falsify it, and readers sort events by time. The same pass learns each periodic channel's
 period (median of its recent intervals) and records a silence longer than
 :func:`rig.quality.stall_threshold_ns` of it as a ``gap`` event with its span (a stall).
 """
@@ -55,8 +57,9 @@ _CLAMP_EVENT_EVERY_NS = 1_000_000_000
 """At most one clamp event per channel and second of log time (the count covers the clamps between)."""
 _PERIOD_SAMPLES = 64
 """Intervals a channel's period estimate is the median of (re-estimated every that many)."""
-_NOT_PERIODIC_SUFFIXES = ("/markpos", "/marktime")
-"""Event-driven GNSS logs (the sync switch): no period, no stalls."""
+_NOT_PERIODIC_SUFFIXES = ("/markpos", "/marktime", "/raw")
+"""Event-driven GNSS logs (the sync switch) and raw byte chunks (as the port delivered them): no period,
+no stalls (the decoded topics of the same device are judged)."""
 
 
 def _is_periodic(topic: str) -> bool:
@@ -115,7 +118,7 @@ class _Channel:
 
     __slots__ = ("clamp_event_ns", "clamp_max", "clamp_reported", "clamped", "epoch", "first_log", "intervals",
                  "is_json", "last_log", "lock", "mcap_id", "n", "period", "periodic", "schema", "seq", "source",
-                 "spec", "stalled_ns", "stalls", "topic", "written_log")
+                 "spec", "stalled_ns", "stalls", "topic")
 
     def __init__(self, topic: str, spec: TopicSpec) -> None:
         self.topic = topic
@@ -133,8 +136,6 @@ class _Channel:
         self.first_log = -1
         self.last_log = -1
         """Largest log time queued on the channel (-1: none yet)."""
-        self.written_log = 0
-        """Largest log time the writer wrote on the channel (its floor for events it writes directly)."""
         self.clamped = 0
         self.clamp_max = 0
         self.clamp_reported = 0
@@ -279,19 +280,19 @@ class Source:
         stall: tuple[int, int, float] | None = None
         with ch.lock:
             last = ch.last_log
-            if log_time_ns < last:
+            if log_time_ns < last and topic != TOPIC_EVENTS:
                 back = last - log_time_ns
                 log_time_ns = last
                 ch.clamped += 1
                 if back > ch.clamp_max:
                     ch.clamp_max = back
                 due = ch.clamp_event_ns < 0 or last - ch.clamp_event_ns >= _CLAMP_EVENT_EVERY_NS
-                if due and topic != TOPIC_EVENTS:
+                if due:
                     clamp = (last, ch.clamped - ch.clamp_reported, back)
                     ch.clamp_reported = ch.clamped
                     ch.clamp_event_ns = last
             else:
-                if last >= 0 and ch.periodic:
+                if last >= 0 and ch.periodic and log_time_ns >= last:
                     dt = log_time_ns - last
                     if ch.period > 0 and dt > stall_threshold_ns(ch.period):
                         ch.stalls += 1
@@ -306,7 +307,7 @@ class Source:
                             iv.clear()
                 if ch.first_log < 0:
                     ch.first_log = log_time_ns
-                ch.last_log = log_time_ns
+                ch.last_log = max(last, log_time_ns)
             ch.n += 1
             ch.source = self.name
             q.append((ch, log_time_ns, publish_time_ns, data))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import threading
 from pathlib import Path
 
 import rig.topics as T  # noqa: N812 - short alias
@@ -52,26 +51,20 @@ def test_a_message_whose_log_time_runs_back_is_clamped_counted_and_reported(tmp_
     assert ev.details["clamped"] == 1 and ev.details["step_back_ns"] == 408 * MS and ev.source == "rover_a"
 
 
-def test_events_from_several_threads_and_the_writer_stay_monotonic(tmp_path: Path) -> None:
+def test_events_keep_the_time_they_are_about(tmp_path: Path) -> None:
+    """/rig/events is exempt from the clamp: a mark's log_time is its key press, even after later events."""
     clock = ManualClock()
     with Recorder(tmp_path, "run", {}, options=options(), clock=clock) as rec:
-        barrier = threading.Barrier(4)
-
-        def emit(i: int) -> None:
-            barrier.wait(5.0)
-            for k in range(200):
-                # late events carry an older log time than ones already queued (a gap reported at its start)
-                rec.event(EventKind.INFO, f"{i}:{k}", log_time_ns=T0 + (k * 7 + i * 13) % 1000 * MS)
-
-        threads = [threading.Thread(target=emit, args=(i,)) for i in range(4)]
-        for th in threads:
-            th.start()
-        for th in threads:
-            th.join(10.0)
-    times, _events = _read(tmp_path / "run")
-    ev = times[T.TOPIC_EVENTS]
-    assert len(ev) >= 800
-    assert all(b >= a for a, b in zip(ev, ev[1:], strict=False))
+        src = rec.source("rover_a")
+        for k in range(10):
+            src.put(POS, T0 + k * 50 * MS, T0 + k, _pos(k))
+        rec.event(EventKind.INFO, "later", log_time_ns=T0 + 2 * NS)
+        rec.event(EventKind.MARK, "pressed earlier", log_time_ns=T0 + NS)
+        timings = {c.topic: c for c in rec.channel_timings()}
+    _times, events = _read(tmp_path / "run")
+    (mark,) = [(t, e) for t, e in events if e.kind is EventKind.MARK]
+    assert mark[0] == T0 + NS
+    assert timings[T.TOPIC_EVENTS].clamped == 0
 
 
 def test_a_stall_longer_than_k_periods_is_a_gap_event_with_its_span(tmp_path: Path) -> None:

@@ -50,7 +50,7 @@ def test_a_starved_interface_stamped_reader_is_unusable_with_its_figures_and_its
     assert figure(can, "timing_error_ms") > 1000.0
     early = [g for g in can.gaps if g.kind == "ended_early"]
     assert len(early) == 1 and early[0].duration_s > 5.0
-    assert figure(can, "missing_percent") > 5.0
+    assert figure(can, "missing_percent") > 10.0
     assert "timing error" in can.message() and "--speed 2" in can.message()
     # GNSS (on GPS time) sets the session's end; it is not judged by the late CAN stream
     assert v["gnss:rover_a"].verdict is Verdict.GOOD
