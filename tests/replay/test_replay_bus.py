@@ -1,0 +1,137 @@
+"""Acceptance: a recorded session replayed onto a live bus and recorded again by the rig's reader and recorder
+gives every frame back byte-exact, in order, with its recorded spacing; a fault changes exactly its signal.
+
+Over socketcand (python-can's client to the simulated server on 127.0.0.1) and a python-can virtual bus. The
+default suite replays at 4x and checks bytes and order; the 1x timing figure (spacing error <= 1 ms at every
+frame) is measured on the host's real clock behind the ``realtime`` marker.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import rig.topics as T  # noqa: N812 - short alias
+from drivers.can.bus import CanBusConfig
+from drivers.can.checks import FrameFlag
+from drivers.can.vector_decode import VectorRoleDecoder
+from rig.dataset import Session
+from rig.replay import ReplayPlan, ReplayStats, parse_bus_spec, parse_fault, replay_session
+from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
+from tests.replay.receiver import ReceivingRecorder
+
+MS = 1_000_000
+
+
+def _replay_into(tmp: Path, recorded: Session, rx_config: CanBusConfig, tx_spec: str, *, speed: float,
+                 faults: tuple[str, ...] = ()) -> tuple[ReplayPlan, ReplayStats, Session]:
+    plans: list[ReplayPlan] = []
+    with ReceivingRecorder(rx_config) as rx:
+        stats = replay_session(recorded.path, parse_bus_spec(tx_spec), speed=speed,
+                               faults=[parse_fault(f) for f in faults], on_plan=plans.append)
+        assert rx.wait_for(len(plans[0]), 10.0), f"received {len(rx.frames)} of {len(plans[0])} frames"
+    again = rx.write(tmp, "again", recorded)
+    return plans[0], stats, again
+
+
+def _assert_same_frames(plan: ReplayPlan, again: Session, payloads: np.ndarray) -> None:
+    got = again.can_frames("vsc").records
+    assert got.shape[0] == len(plan)
+    assert np.array_equal(got["can_id"], plan.can_id)
+    assert np.array_equal(got["len"].astype(np.int64), plan.length)
+    assert np.array_equal(got["flags"] & int(T.CanFlag.EXTENDED), plan.flags & int(T.CanFlag.EXTENDED))
+    w = payloads.shape[1]
+    assert np.array_equal(got["data"][:, :w], payloads), "payload bytes differ"
+
+
+def _spacing_error_ns(plan: ReplayPlan, again: Session, speed: float) -> np.ndarray:
+    """Per frame: received spacing (interface stamps) minus the recorded spacing / speed."""
+    dev = again.can_frames("vsc").records["device_ts_ns"].astype(np.int64)
+    return np.diff(dev) - np.diff(plan.t_ns) / speed
+
+
+@pytest.fixture
+def socketcand(channel: str):
+    with SocketcandServer(virtual_channel_opener({"vsc0": channel}), rawmode_settle_s=0.0) as server:
+        yield server
+
+
+def _socketcand_configs(server: SocketcandServer) -> tuple[CanBusConfig, str]:
+    host, port = server.address
+    rx = CanBusConfig(interface="socketcand", channel="vsc0", options={"host": host, "port": port}, name="rx")
+    return rx, f"socketcand:vsc0,host={host},port={port}"
+
+
+def test_socketcand_replay_is_byte_exact_and_in_order(recorded: Session, socketcand: SocketcandServer,
+                                                      tmp_path: Path) -> None:
+    rx, tx = _socketcand_configs(socketcand)
+    plan, stats, again = _replay_into(tmp_path, recorded, rx, tx, speed=4.0)
+    assert stats.frames_sent == len(plan) == len(recorded.can_frames("vsc"))
+    assert not plan.rewritten.any()
+    _assert_same_frames(plan, again, plan.recorded)
+    # the whole recording went out: every recorded frame's bytes, counters and checksums as they were
+    src = recorded.can_frames("vsc").records
+    assert np.array_equal(again.can_frames("vsc").records["data"], src["data"])
+
+
+def test_virtual_replay_is_byte_exact_and_keeps_the_spacing(recorded: Session, channel: str, tmp_path: Path) -> None:
+    rx = CanBusConfig(interface="virtual", channel=channel, name="rx")
+    plan, _stats, again = _replay_into(tmp_path, recorded, rx, f"virtual:{channel}", speed=4.0)
+    _assert_same_frames(plan, again, plan.recorded)
+    # a loose bound at 4x on a shared machine; the 1 ms figure at 1x is the realtime test below
+    err = np.abs(_spacing_error_ns(plan, again, 4.0))
+    assert np.median(err) < 1 * MS, np.percentile(err, [50, 99, 100])
+
+
+def test_fault_injection_changes_exactly_the_chosen_signal(recorded: Session, socketcand: SocketcandServer,
+                                                           tmp_path: Path) -> None:
+    rx, tx = _socketcand_configs(socketcand)
+    plan, _stats, again = _replay_into(tmp_path, recorded, rx, tx, speed=4.0,
+                                       faults=("yaw_rate:offset=0.05@1.0..2.0",))
+    _assert_same_frames(plan, again, plan.data)
+    db = recorded.dbc()
+    msg = db.get_message_by_name("ESC_SensorCluster")
+    src = recorded.can_frames("vsc")
+    rec = again.can_frames("vsc").records
+    rows = np.flatnonzero(rec["can_id"] == msg.frame_id)
+    t_rel = plan.t_ns[rows] / 1e9
+    in_window = (t_rel >= 1.0) & (t_rel < 2.0)
+    assert in_window.sum() >= 90  # 100 Hz for 1 s
+    for k, r in enumerate(rows):
+        before = msg.decode(bytes(src.records["data"][r][:8]), decode_choices=False)
+        after = msg.decode(bytes(rec["data"][r][:8]), decode_choices=False)
+        changed = {n for n in before if before[n] != after[n]}
+        if in_window[k]:
+            assert changed <= {"ESC_YawRate", "CHECKSUM"} and "ESC_YawRate" in changed
+            assert after["ESC_YawRate"] - before["ESC_YawRate"] == pytest.approx(np.degrees(0.05), abs=0.0051)
+            assert after["COUNTER"] == before["COUNTER"]
+        else:
+            assert not changed and bytes(rec["data"][r]) == bytes(src.records["data"][r])
+    # other messages untouched; every checksum and counter of the second recording verifies
+    others = np.flatnonzero(rec["can_id"] != msg.frame_id)
+    assert np.array_equal(rec["data"][others], src.records["data"][others])
+    decoded = VectorRoleDecoder(db, recorded.rolemap(db, "vsc")).decode(again.can_frames("vsc").batch())
+    for name, series in decoded.roles.items():
+        bad = series.flags & int(FrameFlag.frame_level())
+        assert not bad.any(), (name, FrameFlag(int(bad[bad != 0][0])).names())
+
+
+@pytest.mark.realtime
+@pytest.mark.parametrize("transport", ["virtual", "socketcand"])
+def test_spacing_within_1ms_at_1x(recorded: Session, channel: str, tmp_path: Path, transport: str) -> None:
+    """At 1x every frame's spacing from its predecessor, as the receiving reader's interface stamps show it,
+    is within 1 ms of the recorded spacing (virtual: the bus stamps at send; socketcand: the server's bus
+    stamps when the client's send command arrives over TCP)."""
+    if transport == "virtual":
+        rx = CanBusConfig(interface="virtual", channel=channel, name="rx")
+        plan, stats, again = _replay_into(tmp_path, recorded, rx, f"virtual:{channel}", speed=1.0)
+    else:
+        with SocketcandServer(virtual_channel_opener({"vsc0": channel}), rawmode_settle_s=0.0) as server:
+            rx, tx = _socketcand_configs(server)
+            plan, stats, again = _replay_into(tmp_path, recorded, rx, tx, speed=1.0)
+    _assert_same_frames(plan, again, plan.recorded)
+    err = np.abs(_spacing_error_ns(plan, again, 1.0))
+    assert err.max() <= 1 * MS, f"spacing error µs p50/p99/max {np.percentile(err, [50, 99, 100]) / 1e3}"
+    assert stats.late_frames == 0, stats.summary()
