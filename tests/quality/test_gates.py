@@ -77,3 +77,22 @@ def test_rig_info_shows_the_verdicts(sessions: dict[str, Path]) -> None:
     assert doc["problem"] is None
     assert doc["streams"]["can:vsc"]["verdict"] == "unusable"
     assert doc["streams"]["can:vsc"]["figures"]["timing_error_ms"]["unusable_above"] == 5.0
+
+
+def test_a_degraded_stream_is_in_the_validation_headline_report_and_json(
+    sessions: dict[str, Path], tmp_path: Path,
+) -> None:
+    from rig.report import write_validation_report
+    from rig.validate import validate_session, validation_lines
+
+    sv = validate_session(sessions["jittery"], estimator="tests.quality.estimators:zero")
+    (w,) = sv.timing_warnings
+    assert w.startswith("TIMING DEGRADED — can:vsc degraded: timing error")
+    assert validation_lines(sv)[1] == w  # right under the session line, before any figure
+    doc = sv.to_dict()
+    assert doc["timing_warnings"] == [w]
+    assert doc["time_base"]["can:vsc"]["verdict"] == "degraded"
+    html = write_validation_report(sv, tmp_path / "report").html.read_text(encoding="utf-8")
+    head = html[html.index("class='verdict"): html.index("<ul>")]
+    assert "class='timing'" in head and "can:vsc degraded" in head
+    assert "Time base of the streams used" in html
