@@ -1,0 +1,168 @@
+"""The replay schedule on an injected fake clock: absolute deadlines (lateness never accumulates), speed,
+loop passes, stop, and the lateness figures. Deterministic: no wall clock involved."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import can
+import numpy as np
+import pytest
+
+import rig.topics as T  # noqa: N812 - short alias
+from rig.replay import ReplayPlan, Replayer
+from vsccore.errors import ConfigError
+
+MS = 1_000_000
+
+
+class FakeClock:
+    """A clock whose sleeps end ``oversleep_ns[k % len]`` after the deadline asked for (a host that wakes late)."""
+
+    def __init__(self, start_ns: int = 1_700_000_000 * 10**9, oversleep_ns: tuple[int, ...] = (0,)) -> None:
+        self.t = start_ns
+        self.oversleep = oversleep_ns
+        self.sleeps = 0
+
+    def now_ns(self) -> int:
+        return self.t
+
+    def sleep_until_ns(self, t_ns: int, stop: threading.Event | None = None) -> bool:
+        if stop is not None and stop.is_set():
+            return False
+        if t_ns > self.t:
+            self.t = t_ns + self.oversleep[self.sleeps % len(self.oversleep)]
+            self.sleeps += 1
+        return True
+
+
+class RecordingBus(can.BusABC):
+    """Keeps every frame sent with the fake clock's time; receives nothing."""
+
+    def __init__(self, clock: FakeClock, stop_after: int | None = None, stop: threading.Event | None = None) -> None:
+        super().__init__(channel="fake")
+        self.clock = clock
+        self.sent: list[tuple[int, can.Message]] = []
+        self._stop_after = stop_after
+        self._stop = stop
+        self.channel_info = "fake bus"
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.sent.append((self.clock.now_ns(), msg))
+        if self._stop is not None and len(self.sent) == self._stop_after:
+            self._stop.set()
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        return None, False
+
+
+def plan_of(t_ms: list[float], ids: list[int]) -> ReplayPlan:
+    n = len(t_ms)
+    data = np.zeros((n, 8), dtype=np.uint8)
+    data[:, 0] = np.arange(n) % 256
+    return ReplayPlan(
+        bus="test", t_ns=np.round(np.asarray(t_ms) * MS).astype(np.int64),
+        can_id=np.asarray(ids, dtype=np.uint32), flags=np.full(n, int(T.CanFlag.RX), dtype=np.uint8),
+        dlc=np.full(n, 8, dtype=np.uint8), length=np.full(n, 8, dtype=np.int64), data=data, recorded=data,
+        rewritten=np.zeros(n, dtype=bool),
+    )
+
+
+def periodic(n: int, period_ms: float = 10.0, ident: int = 0x101) -> ReplayPlan:
+    return plan_of([k * period_ms for k in range(n)], [ident] * n)
+
+
+def run(plan: ReplayPlan, clock: FakeClock, **kw: Any) -> tuple[RecordingBus, Any]:
+    bus = RecordingBus(clock)
+    try:
+        stats = Replayer(plan, bus, clock, **kw).run()
+    finally:
+        bus.shutdown()
+    return bus, stats
+
+
+def test_each_frame_is_sent_at_its_absolute_due_time_and_lateness_does_not_accumulate() -> None:
+    """Every wake-up is 0.4 ms late: with absolute deadlines each frame is 0.4 ms late, never more. A player
+    that slept the recorded gap after each send (relative sleeps) would be 1000 x 0.4 ms = 400 ms late at the end."""
+    clock = FakeClock(oversleep_ns=(400_000,))
+    plan = periodic(1000)
+    bus, stats = run(plan, clock, lead_s=0.01)
+    sent = np.asarray([t for t, _m in bus.sent])
+    due = stats.start_ns + plan.t_ns
+    assert sent.size == 1000
+    assert np.all(sent - due == 400_000)
+    assert stats.late_frames == 0 and stats.lateness_us["max"] == 400
+    assert [int(m.data[0]) for _t, m in bus.sent] == [k % 256 for k in range(1000)]
+
+
+def test_a_stall_delays_only_the_frames_behind_it() -> None:
+    """One wake-up 25 ms late (a host stall): the frames due meanwhile go out at once, later ones on time."""
+    clock = FakeClock(oversleep_ns=(0,) * 9 + (25 * MS,) + (0,) * 1000)  # frame 0 needs no sleep
+    plan = periodic(50)
+    bus, stats = run(plan, clock, lead_s=0.0)
+    late = np.asarray([t for t, _m in bus.sent]) - (stats.start_ns + plan.t_ns)
+    assert late[:10].max() == 0
+    assert late[10] == 25 * MS and late[11] == 15 * MS and late[12] == 5 * MS
+    assert np.all(late[13:] == 0)
+    assert stats.late_frames == 3 and stats.frames_sent == 50
+
+
+def test_speed_scales_the_recorded_spacing() -> None:
+    clock = FakeClock()
+    plan = plan_of([0.0, 10.0, 15.0, 40.0], [1, 2, 3, 4])
+    bus, stats = run(plan, clock, speed=2.5, lead_s=0.0)
+    sent = np.asarray([t for t, _m in bus.sent]) - stats.start_ns
+    assert sent.tolist() == [0, 4 * MS, 6 * MS, 16 * MS]
+
+
+def test_loop_passes_follow_each_other_with_the_longest_cycle_between() -> None:
+    # two messages: 0x101 every 10 ms, 0x5A0 every 100 ms; span 290 ms
+    t = [k * 10.0 for k in range(30)] + [5.0 + 100.0 * k for k in range(3)]
+    ids = [0x101] * 30 + [0x5A0] * 3
+    order = np.argsort(t, kind="stable")
+    plan = plan_of([t[k] for k in order], [ids[k] for k in order])
+    assert plan.pass_length_ns() == 290 * MS + 100 * MS
+    clock = FakeClock()
+    bus, stats = run(plan, clock, passes=3, lead_s=0.0)
+    assert stats.passes == 3 and stats.frames_sent == 3 * 33
+    sent = np.asarray([t for t, _m in bus.sent]) - stats.start_ns
+    for p in range(3):
+        assert np.array_equal(sent[33 * p: 33 * (p + 1)], plan.t_ns + p * 390 * MS)
+    # the slow message keeps at least its own cycle across the loop boundary
+    slow = sent[[k for k, (_t, m) in enumerate(bus.sent) if m.arbitration_id == 0x5A0]]
+    assert np.diff(slow).min() >= 100 * MS
+
+
+def test_stop_ends_the_replay_between_frames() -> None:
+    clock = FakeClock()
+    stop = threading.Event()
+    bus = RecordingBus(clock, stop_after=7, stop=stop)
+    try:
+        stats = Replayer(periodic(100), bus, clock, passes=None, stop=stop, lead_s=0.0).run()
+    finally:
+        bus.shutdown()
+    assert stats.stopped and stats.frames_sent == 7 and len(bus.sent) == 7
+
+
+def test_frames_keep_id_length_flags_and_bytes() -> None:
+    plan = plan_of([0.0, 1.0], [0x101, 0x18FF0001])
+    flags = plan.flags.copy()
+    flags[1] |= int(T.CanFlag.EXTENDED)
+    plan = ReplayPlan(**{**{f: getattr(plan, f) for f in plan.__dataclass_fields__}, "flags": flags})
+    bus, _stats = run(plan, FakeClock(), lead_s=0.0)
+    (_t0, a), (_t1, b) = bus.sent
+    assert (a.arbitration_id, a.is_extended_id, bytes(a.data)) == (0x101, False, bytes(plan.data[0]))
+    assert (b.arbitration_id, b.is_extended_id, b.dlc) == (0x18FF0001, True, 8)
+
+
+@pytest.mark.parametrize(("kw", "match"), [({"speed": 0.0}, "speed"), ({"speed": float("nan")}, "speed"),
+                                           ({"passes": 0}, "passes")])
+def test_bad_options_are_config_errors(kw: dict[str, Any], match: str) -> None:
+    clock = FakeClock()
+    bus = RecordingBus(clock)
+    try:
+        with pytest.raises(ConfigError, match=match):
+            Replayer(periodic(3), bus, clock, **kw)
+    finally:
+        bus.shutdown()
