@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import rig.topics as T  # noqa: N812 - short alias
-from rig.replay import ReplayPlan, Replayer
+from rig.replay import Replayer, ReplayPlan
 from vsccore.errors import ConfigError
 
 MS = 1_000_000
