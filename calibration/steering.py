@@ -13,6 +13,7 @@ Angles are in rad, positive to the left (ISO 8855); GNSS azimuths clockwise from
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from collections.abc import Sequence
@@ -50,6 +51,9 @@ class CircleFit:
     """Angle swept about the centre in sample order, counter-clockwise positive (may exceed 2π)."""
     arc_coverage_rad: float
     """Part of the circle covered by the points (2π minus the largest angular gap)."""
+    radius_se_m: float = math.nan
+    """Standard error of the radius: the fit's covariance with the residual variance, inflated for the
+    residuals' autocorrelation (n_eff = n / (1 + 2 Σ ρ_k), summed to the first negative ρ_k)."""
 
     def to_dict(self) -> dict[str, float | int]:
         """JSON-able view (units in the key names)."""
@@ -57,11 +61,29 @@ class CircleFit:
             "east_m": self.east_m,
             "north_m": self.north_m,
             "radius_m": self.radius_m,
+            "radius_se_m": self.radius_se_m,
             "rms_residual_m": self.rms_residual_m,
             "n_points": self.n_points,
             "swept_deg": math.degrees(self.swept_rad),
             "arc_coverage_deg": math.degrees(self.arc_coverage_rad),
         }
+
+
+def _autocorrelation_inflation(res: FloatArray) -> float:
+    """1 + 2 Σ ρ_k over the lags before the first negative autocorrelation (≥ 1): variance factor of a mean."""
+    r = res - float(np.mean(res))
+    n = r.size
+    var = float(r @ r)
+    if n < 4 or var <= 0.0:
+        return 1.0
+    spec = np.fft.rfft(r, 2 * n)
+    acf = np.fft.irfft(spec * np.conj(spec))[:n] / var
+    total = 0.0
+    for k in range(1, n // 2):
+        if acf[k] <= 0.0:
+            break
+        total += float(acf[k])
+    return max(1.0, 1.0 + 2.0 * total)
 
 
 def fit_circle(east_m: npt.ArrayLike, north_m: npt.ArrayLike) -> CircleFit:
@@ -115,6 +137,12 @@ def fit_circle(east_m: npt.ArrayLike, north_m: npt.ArrayLike) -> CircleFit:
     if not math.isfinite(rr) or rr > 1e6:
         raise CalibrationError(f"fit_circle: the {n} points are (nearly) on a straight line; radius diverged")
     res = residuals(np.array([uc, vc, rr]))
+    jac = jacobian(np.array([uc, vc, rr]))
+    try:
+        cov = np.linalg.inv(jac.T @ jac) * float(res @ res) / max(n - 3, 1) * _autocorrelation_inflation(res)
+        radius_se = scale * math.sqrt(max(float(cov[2, 2]), 0.0))
+    except np.linalg.LinAlgError:
+        radius_se = math.inf
     ang = np.arctan2(v - vc, u - uc)
     swept = float(unwrap(ang)[-1] - unwrap(ang)[0])
     srt = np.sort(ang)
@@ -127,6 +155,7 @@ def fit_circle(east_m: npt.ArrayLike, north_m: npt.ArrayLike) -> CircleFit:
         n_points=n,
         swept_rad=swept,
         arc_coverage_rad=float(2.0 * math.pi - np.max(gaps)),
+        radius_se_m=radius_se,
     )
 
 
@@ -194,6 +223,12 @@ class SteeringRatioRow:
     """|Angle swept| about the centre."""
     t_start_s: float
     duration_s: float
+    delta_se_rad: float = math.nan
+    """Standard error of δ from the circle fit's radius (:attr:`CircleFit.radius_se_m`)."""
+    swa_zero_removed_rad: float = 0.0
+    """SAS zero offset already removed from ``swa_rad`` (:func:`apply_sas_zero`)."""
+    ratio_u95: float = math.nan
+    """95 % uncertainty of the ratio, relative (0.01 = 1 %): δ from the fit, the SAS zero's uncertainty / SWA."""
 
     @property
     def swa_deg(self) -> float:
@@ -218,6 +253,9 @@ class SteeringRatioRow:
             "arc_deg": math.degrees(self.arc_rad),
             "t_start_s": self.t_start_s,
             "duration_s": self.duration_s,
+            "delta_se_deg": math.degrees(self.delta_se_rad),
+            "swa_zero_removed_deg": math.degrees(self.swa_zero_removed_rad),
+            "ratio_u95_percent": 100.0 * self.ratio_u95,
         }
 
     @classmethod
@@ -235,6 +273,9 @@ class SteeringRatioRow:
                 arc_rad=math.radians(_num(d["arc_deg"])),
                 t_start_s=_num(d["t_start_s"]),
                 duration_s=_num(d["duration_s"]),
+                delta_se_rad=math.radians(_num(d.get("delta_se_deg", math.nan))),
+                swa_zero_removed_rad=math.radians(_num(d.get("swa_zero_removed_deg", 0.0))),
+                ratio_u95=_num(d.get("ratio_u95_percent", math.nan)) / 100.0,
             )
         except KeyError as exc:
             raise CalibrationError(f"steering ratio row: key {exc.args[0]!r} missing") from None
@@ -255,6 +296,10 @@ class SteeringRatioTable:
     wheelbase_m: float
     rows: tuple[SteeringRatioRow, ...]
     warnings: tuple[str, ...] = ()
+    flagged: tuple[SteeringRatioRow, ...] = ()
+    """Rows whose ratio is too uncertain to be a result (:func:`apply_sas_zero`); not in ``rows``."""
+    sas_zero: SasZeroEstimate | None = None
+    """The SAS zero offset removed from the rows, when one was."""
 
     def ratio_at(self, swa_rad: npt.ArrayLike, direction: Direction = Direction.FORWARD) -> FloatArray:
         """Ratio at any SWA by linear interpolation in SWA (held constant beyond the measured range).
@@ -278,6 +323,8 @@ class SteeringRatioTable:
         return {
             "wheelbase_m": self.wheelbase_m,
             "rows": [r.to_dict() for r in self.rows],
+            "flagged": [r.to_dict() for r in self.flagged],
+            "sas_zero": None if self.sas_zero is None else self.sas_zero.to_dict(),
             "warnings": list(self.warnings),
         }
 
@@ -298,10 +345,14 @@ class SteeringRatioTable:
             wheelbase = _num(d["wheelbase_m"])
         except (KeyError, ValueError):
             raise CalibrationError("steering ratio table: key 'wheelbase_m' missing or not a number") from None
+        flagged = d.get("flagged", [])
+        if not isinstance(flagged, list):
+            raise CalibrationError("steering ratio table: key 'flagged' is not a list")
         return cls(
             wheelbase_m=wheelbase,
             rows=tuple(SteeringRatioRow.from_dict(r) for r in rows),
             warnings=tuple(str(w) for w in warnings),
+            flagged=tuple(SteeringRatioRow.from_dict(r) for r in flagged),
         )
 
 
@@ -353,6 +404,8 @@ def steering_ratio_from_circles(
         rotation = math.copysign(1.0, fit.swept_rad)
         sign = rotation if seg.direction is Direction.FORWARD else -rotation
         delta = sign * road_wheel_angle(fit.radius_m, wheelbase_m)
+        # dδ/dR = −L / (R² + L²)
+        delta_se = wheelbase_m / (fit.radius_m**2 + wheelbase_m**2) * fit.radius_se_m
         if seg.swa_rad != 0.0 and math.copysign(1.0, seg.swa_rad) != sign:
             warnings.append(
                 f"{where}: the car turned {'left' if sign > 0 else 'right'} with the steering wheel "
@@ -370,6 +423,8 @@ def steering_ratio_from_circles(
                 arc_rad=arc,
                 t_start_s=seg.t_start_s,
                 duration_s=seg.duration_s,
+                delta_se_rad=delta_se,
+                ratio_u95=1.96 * abs(delta_se / delta) if delta != 0.0 else math.inf,
             )
         )
     if not rows:
@@ -377,6 +432,245 @@ def steering_ratio_from_circles(
         raise CalibrationError(f"no usable steering circle: {detail}")
     rows.sort(key=lambda r: (r.direction.value != Direction.FORWARD.value, r.swa_rad))
     return SteeringRatioTable(wheelbase_m=float(wheelbase_m), rows=tuple(rows), warnings=tuple(warnings))
+
+
+# --------------------------------------------------------------------------------------------
+# steering-angle sensor zero offset
+
+DEFAULT_PAIR_TOLERANCE = 0.10
+"""Left and right circles pair up when their |SWA| differ by less than this fraction."""
+DEFAULT_MAX_RATIO_U95 = 0.01
+"""Rows whose 95 % ratio uncertainty exceeds this (1 %) are flagged, not reported as results."""
+_Z95 = 1.959963984540054
+
+
+@dataclass(frozen=True, slots=True)
+class SasZeroSource:
+    """One estimate of the SAS zero offset."""
+
+    method: str
+    """"circle pairs" or "straight runs"."""
+    offset_rad: float
+    se_rad: float
+    """Standard error."""
+    n: int
+    """Pairs of circles, or straight-run epochs."""
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-able view (degrees)."""
+        return {"method": self.method, "offset_deg": math.degrees(self.offset_rad),
+                "u95_deg": math.degrees(_Z95 * self.se_rad), "n": self.n}
+
+
+@dataclass(frozen=True, slots=True)
+class SasZeroEstimate:
+    """Zero offset c of the steering-angle sensor (SWA_measured = SWA_true + c) with its 95 % uncertainty."""
+
+    offset_rad: float
+    u95_rad: float
+    sources: tuple[SasZeroSource, ...]
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def offset_deg(self) -> float:
+        """Offset (deg)."""
+        return math.degrees(self.offset_rad)
+
+    @property
+    def u95_deg(self) -> float:
+        """95 % uncertainty (deg)."""
+        return math.degrees(self.u95_rad)
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-able view (degrees)."""
+        return {"offset_deg": self.offset_deg, "u95_deg": self.u95_deg,
+                "sources": [x.to_dict() for x in self.sources], "warnings": list(self.warnings)}
+
+
+def sas_zero_from_circle_pairs(
+    rows: Sequence[SteeringRatioRow], *, tolerance: float = DEFAULT_PAIR_TOLERANCE
+) -> SasZeroSource | None:
+    """SAS zero from left/right circle pairs of the same direction of travel (rows with the raw SWA).
+
+    An odd steering gear gives δ(−s) = −δ(s); with measured angles m_L > 0 > m_R, fitted δ_L and δ_R
+    and the gear's local slope k = dδ/dSWA there: c = (m_L + m_R)/2 − (δ_L + δ_R)/(2k). k comes from
+    the curve through the origin and the pairs' mid-points ((m_L − m_R)/2, (δ_L − δ_R)/2). Holding
+    the measured or the true angles symmetric both work. Forward and reverse pairs see the tyre-slip
+    bias of δ with opposite signs; all pairs are averaged with weights 1/σ², σ from the fits' δ
+    uncertainties, and the standard error is the larger of the formal one and the pairs' scatter.
+    None when no pair matches within ``tolerance`` (fraction of |SWA|).
+    """
+    est: list[tuple[float, float]] = []
+    for direction in Direction:
+        left = sorted((r for r in rows if r.direction is direction and r.swa_rad > 0.0), key=lambda r: r.swa_rad)
+        right = [r for r in rows if r.direction is direction and r.swa_rad < 0.0]
+        pairs: list[tuple[SteeringRatioRow, SteeringRatioRow]] = []
+        for rl in left:
+            if not right:
+                break
+            rr = min(right, key=lambda r: abs(abs(r.swa_rad) - rl.swa_rad))
+            if abs(abs(rr.swa_rad) - rl.swa_rad) > tolerance * rl.swa_rad:
+                continue
+            right.remove(rr)
+            if rl.delta_rad > 0.0 > rr.delta_rad:
+                pairs.append((rl, rr))
+        if not pairs:
+            continue
+        # the local slope dδ/dSWA at each pair's |SWA|: the gear curve through the origin and the pairs'
+        # mid-points (second-order differences); one pair alone: its secant
+        half_swa = np.array([0.0] + [0.5 * (rl.swa_rad - rr.swa_rad) for rl, rr in pairs])
+        half_delta = np.array([0.0] + [0.5 * (rl.delta_rad - rr.delta_rad) for rl, rr in pairs])
+        slopes = (np.gradient(half_delta, half_swa, edge_order=2)[1:] if len(pairs) > 1
+                  else half_delta[1:] / half_swa[1:])
+        for (rl, rr), k in zip(pairs, slopes, strict=True):
+            if not k > 0.0:
+                continue
+            c = 0.5 * (rl.swa_rad + rr.swa_rad) - 0.5 * (rl.delta_rad + rr.delta_rad) / float(k)
+            se_d = math.hypot(rl.delta_se_rad, rr.delta_se_rad)
+            se = 0.5 * se_d / float(k) if math.isfinite(se_d) else math.inf
+            est.append((c, se))
+    if not est:
+        return None
+    return _weighted("circle pairs", est)
+
+
+def _weighted(method: str, est: Sequence[tuple[float, float]]) -> SasZeroSource:
+    c = np.array([e[0] for e in est])
+    se = np.array([e[1] for e in est])
+    finite = np.isfinite(se) & (se > 0.0)
+    if not finite.any():
+        return SasZeroSource(method, float(np.mean(c)), math.inf, len(est))
+    w = np.where(finite, 1.0 / np.where(finite, se, 1.0) ** 2, 0.0)
+    mean = float(np.sum(w * c) / np.sum(w))
+    formal = math.sqrt(1.0 / float(np.sum(w)))
+    n = int(np.count_nonzero(finite))
+    if n > 1:
+        scatter = math.sqrt(float(np.sum(w * (c - mean) ** 2)) / (float(np.sum(w)) * (n - 1)))
+        formal = max(formal, scatter)
+    return SasZeroSource(method, mean, formal, len(est))
+
+
+def sas_zero_from_straights(
+    t_s: npt.ArrayLike,
+    swa_rad: npt.ArrayLike,
+    yaw_rate_rps: npt.ArrayLike,
+    speed_mps: npt.ArrayLike,
+    masks: Sequence[npt.ArrayLike],
+    *,
+    min_samples: int = 40,
+) -> SasZeroSource | None:
+    """SAS zero from straight runs: SWA = c + G·κ regressed on the path curvature κ = r / v (intercept c).
+
+    ``masks`` select the samples of each straight run (e.g. ``Segment`` index ranges). A common gain G
+    absorbs the steering the driver's small corrections need, so weaving does not bias c. The standard
+    error comes from the residuals, inflated for their autocorrelation per run. None with fewer than
+    ``min_samples`` usable samples.
+    """
+    t, _ = check_time(t_s)
+    swa = np.asarray(swa_rad, dtype=float)
+    r = np.asarray(yaw_rate_rps, dtype=float)
+    v = np.asarray(speed_mps, dtype=float)
+    if swa.shape != t.shape or r.shape != t.shape or v.shape != t.shape:
+        raise CalibrationError("sas_zero_from_straights: swa, yaw rate and speed must be sampled on t_s")
+    sel: list[npt.NDArray[np.intp]] = []
+    for m in masks:
+        mm = np.asarray(m, dtype=bool)
+        if mm.shape != t.shape:
+            raise CalibrationError(f"sas_zero_from_straights: a mask has shape {mm.shape}, t_s has {t.shape}")
+        idx = np.flatnonzero(mm & np.isfinite(swa) & np.isfinite(r) & np.isfinite(v) & (np.abs(v) > 1.0))
+        if idx.size >= 3:
+            sel.append(idx)
+    n = sum(i.size for i in sel)
+    if n < min_samples:
+        return None
+    idx_all = np.concatenate(sel)
+    kappa = r[idx_all] / np.abs(v[idx_all])
+    a = np.column_stack([np.ones(n), kappa])
+    y = swa[idx_all]
+    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+    res = y - a @ coef
+    pos = 0
+    infl_num = 0.0
+    for idx in sel:
+        part = res[pos: pos + idx.size]
+        infl_num += idx.size * _autocorrelation_inflation(part)
+        pos += idx.size
+    inflation = infl_num / n
+    try:
+        cov = np.linalg.inv(a.T @ a) * float(res @ res) / max(n - 2, 1) * inflation
+    except np.linalg.LinAlgError:
+        return None
+    return SasZeroSource("straight runs", float(coef[0]), math.sqrt(max(float(cov[0, 0]), 0.0)), n)
+
+
+def combine_sas_zero(sources: Sequence[SasZeroSource | None], *, resolution_rad: float = 0.0) -> SasZeroEstimate:
+    """Inverse-variance mean of the available estimates; widened by the Birge ratio when they disagree.
+
+    ``resolution_rad`` is the sensor's quantisation step: a steady angle does not dither between steps, so
+    averaging cannot beat it, and the standard uncertainty is at least resolution / √12.
+
+    Raises:
+        CalibrationError: no estimate at all (no left/right circle pair, no straight run).
+    """
+    floor = max(resolution_rad / math.sqrt(12.0), 1e-9)
+    got = [x if x.se_rad >= floor else dataclasses.replace(x, se_rad=floor)
+           for x in sources if x is not None and math.isfinite(x.se_rad)]
+    if not got:
+        raise CalibrationError(
+            "SAS zero offset: no estimate (needs left and right circles at the same |SWA| in one direction, or "
+            "straight runs at speed)"
+        )
+    w = np.array([1.0 / x.se_rad**2 for x in got])
+    c = np.array([x.offset_rad for x in got])
+    mean = float(np.sum(w * c) / np.sum(w))
+    se = math.sqrt(1.0 / float(np.sum(w)))
+    warnings: list[str] = []
+    if len(got) > 1:
+        chi2 = float(np.sum(w * (c - mean) ** 2))
+        birge = math.sqrt(chi2 / (len(got) - 1))
+        if birge > 2.0:
+            warnings.append(
+                "SAS zero: the estimates disagree ("
+                + ", ".join(f"{x.method} {math.degrees(x.offset_rad):+.3f}°" for x in got)
+                + f"); uncertainty widened ×{birge:.1f}"
+            )
+        se *= max(1.0, birge)
+    se = max(se, resolution_rad / math.sqrt(12.0))
+    return SasZeroEstimate(mean, _Z95 * se, tuple(got), tuple(warnings))
+
+
+def apply_sas_zero(
+    table: SteeringRatioTable, zero: SasZeroEstimate, *, max_ratio_u95: float = DEFAULT_MAX_RATIO_U95
+) -> SteeringRatioTable:
+    """Remove the SAS zero from every row, recompute the ratios and their uncertainties, flag the uncertain ones.
+
+    A row's relative 95 % uncertainty combines δ's (from the circle fit) and the zero's divided by the
+    SWA. Rows above ``max_ratio_u95`` move to ``flagged`` with a warning naming them (short holds at
+    small angles: the radius is poorly determined and the zero weighs most).
+    """
+    u_c = zero.u95_rad / _Z95
+    rows: list[SteeringRatioRow] = []
+    flagged: list[SteeringRatioRow] = []
+    warnings = list(table.warnings) + list(zero.warnings)
+    for r in table.rows:
+        swa = r.swa_rad + r.swa_zero_removed_rad - zero.offset_rad
+        rel = math.hypot(r.delta_se_rad / r.delta_rad if r.delta_rad else math.inf,
+                         u_c / swa if swa else math.inf)
+        u95 = _Z95 * rel if math.isfinite(rel) else math.inf
+        new = dataclasses.replace(r, swa_rad=swa, ratio=swa / r.delta_rad, swa_zero_removed_rad=zero.offset_rad,
+                                  ratio_u95=u95)
+        if not u95 <= max_ratio_u95:
+            flagged.append(new)
+            warnings.append(
+                f"SWA {math.degrees(swa):+.0f}° {r.direction.value} at t = {r.t_start_s:.1f} s: ratio "
+                f"{new.ratio:.3f} ± {100 * u95:.1f} % (95 %), too uncertain for a {100 * max_ratio_u95:g} % row "
+                f"({r.duration_s:.0f} s hold, {math.degrees(r.arc_rad):.0f}° of a {r.radius_m:.0f} m circle): "
+                "flagged, not a result; hold it longer"
+            )
+        else:
+            rows.append(new)
+    return dataclasses.replace(table, rows=tuple(rows), flagged=tuple(flagged), warnings=tuple(warnings),
+                               sas_zero=zero)
 
 
 # --------------------------------------------------------------------------------------------

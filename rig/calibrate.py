@@ -51,7 +51,17 @@ from calibration.segments import (
     find_constant_swa_segments,
     find_straight_segments,
 )
-from calibration.steering import SteeringRatioTable, antenna_to_rear_axle, steering_ratio_from_circles
+from calibration.steering import (
+    SasZeroEstimate,
+    SteeringRatioRow,
+    SteeringRatioTable,
+    antenna_to_rear_axle,
+    apply_sas_zero,
+    combine_sas_zero,
+    sas_zero_from_circle_pairs,
+    sas_zero_from_straights,
+    steering_ratio_from_circles,
+)
 from rig.config import ImuCalibrationConfig, SessionConfig, load_profile
 from rig.quality import check_inputs
 from rig.sessiondata import DualGnss, SessionInputs
@@ -503,6 +513,10 @@ class SteeringOptions:
     RTK noise a 50° arc of a 5 m circle (sagitta 0.5 m) is off by up to ≈ 1.5 %, 90° and more by a
     few tenths of a percent (benchmarks/study_steering_ratio.py). Small steering angles need long
     holds: the radius grows as 1/δ (≈ 85 m at 30° SWA: 110 s for 90° at 5 km/h).
+
+    The steering-angle sensor's zero offset is estimated from left/right circle pairs and from the
+    straight runs at more than ``straight_min_speed_kmh`` (docs/steering.md) and removed; a row whose
+    95 % ratio uncertainty exceeds ``max_ratio_u95_percent`` is flagged instead of reported.
     """
 
     max_speed_kmh: float = 15.0
@@ -511,6 +525,9 @@ class SteeringOptions:
     min_duration_s: float = 5.0
     min_turn_deg: float = 60.0
     min_arc_deg: float = 60.0
+    straight_min_speed_kmh: float = 25.0
+    straight_min_duration_s: float = 3.0
+    max_ratio_u95_percent: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -525,15 +542,25 @@ class SteeringCalibration:
     """Simulated sessions: the simulator's SWA / road-wheel angle over each row's circle (row index → ratio)."""
     warnings: tuple[str, ...]
     plot_data: Mapping[str, FloatArray] = field(repr=False, compare=False, default_factory=dict)
+    flagged_truth_ratio: Mapping[int, float] = field(default_factory=dict)
+    """As ``truth_ratio`` for ``table.flagged``."""
+
+    @property
+    def sas_zero(self) -> SasZeroEstimate | None:
+        """The steering-angle sensor's zero offset removed from the rows (None when it could not be estimated)."""
+        return self.table.sas_zero
 
     def to_dict(self) -> dict[str, object]:
-        """JSON view: ``rows`` (swa_deg, direction, radius_m, delta_deg, ratio, …), ``wheelbase_m``, ``warnings``."""
+        """JSON view: ``rows`` (swa_deg, direction, radius_m, delta_deg, ratio, ratio_u95_percent, …), ``flagged``
+        (rows too uncertain to be results), ``sas_zero`` (offset_deg, u95_deg, sources), ``wheelbase_m``,
+        ``warnings``."""
         d = self.table.to_dict()
-        rows = d["rows"]
-        assert isinstance(rows, list)
-        for i, r in enumerate(rows):
-            if i in self.truth_ratio:
-                r["simulation_true_ratio"] = self.truth_ratio[i]
+        for key, truth in (("rows", self.truth_ratio), ("flagged", self.flagged_truth_ratio)):
+            rows = d[key]
+            assert isinstance(rows, list)
+            for i, r in enumerate(rows):
+                if i in truth:
+                    r["simulation_true_ratio"] = truth[i]
         d["session"] = self.session
         d["mount_offset_deg"] = self.mount_offset_deg
         d["warnings"] = list(self.table.warnings) + list(self.warnings)
@@ -582,20 +609,54 @@ def calibrate_steering_ratio(inputs: SessionInputs, options: SteeringOptions | N
     e, n = antenna_to_rear_axle(g.a.east_m, g.a.north_m, heading, a.xy, (-veh.cg_to_rear_axle_m, 0.0))
     table = steering_ratio_from_circles(segs, g.t_s, e, n, wheelbase_m=veh.wheelbase_m,
                                         min_arc_rad=math.radians(o.min_arc_deg))
-    truth_ratio: dict[int, float] = {}
+    # the steering-angle sensor's zero: left/right circle pairs and straight runs at speed
+    pairs = sas_zero_from_circle_pairs(table.rows)
+    straight = None
+    try:
+        runs = find_straight_segments(
+            g.t_s, g.speed_mps, yaw, np.where(g.valid, g.course_rad, np.nan), ok,
+            min_speed_mps=o.straight_min_speed_kmh / 3.6, min_duration_s=o.straight_min_duration_s)
+    except CalibrationError:
+        runs = []
+    if runs:
+        idx = np.arange(len(g))
+        straight = sas_zero_from_straights(g.t_s, swa, yaw, v,
+                                           [(idx >= r.start_index) & (idx < r.stop_index) for r in runs])
+    extra: list[str] = []
+    try:
+        zero = combine_sas_zero([pairs, straight], resolution_rad=_resolution(swa_sig.values[swa_sig.valid]))
+    except CalibrationError as exc:
+        extra.append(f"{exc}: ratios use the SWA as measured")
+    else:
+        table = apply_sas_zero(table, zero, max_ratio_u95=o.max_ratio_u95_percent / 100.0)
+    return SteeringCalibration(
+        session=inputs.name, table=table, segments=tuple(segs), mount_offset_deg=math.degrees(offset),
+        truth_ratio=_truth_ratios(inputs, table.rows),
+        warnings=(*timing, *extra, *(f"session: {w}" for w in inputs.warnings)),
+        plot_data={"t": g.t_s, "e": e, "n": n, "swa": swa, "v": v},
+        flagged_truth_ratio=_truth_ratios(inputs, table.flagged),
+    )
+
+
+def _resolution(x: FloatArray) -> float:
+    """The quantisation step of a signal: the smallest difference between its distinct values (0 if none)."""
+    u = np.unique(np.round(x[np.isfinite(x)], 9))
+    d = np.diff(u)
+    return float(np.min(d)) if d.size else 0.0
+
+
+def _truth_ratios(inputs: SessionInputs, rows: Sequence[SteeringRatioRow]) -> dict[int, float]:
+    """Simulated sessions: the simulator's mean SWA / mean road-wheel angle over each row's circle."""
+    out: dict[int, float] = {}
     if inputs.truth is not None:
         tr = inputs.truth
-        for i, row in enumerate(table.rows):
+        for i, row in enumerate(rows):
             m = (tr.t_s >= row.t_start_s) & (tr.t_s <= row.t_start_s + row.duration_s)
             rwa = tr.truth.road_wheel_angle[m]
             sw = tr.truth.swa[m]
             if m.sum() > 10 and np.all(np.abs(rwa) > 1e-4):
-                truth_ratio[i] = float(np.mean(sw) / np.mean(rwa))
-    return SteeringCalibration(
-        session=inputs.name, table=table, segments=tuple(segs), mount_offset_deg=math.degrees(offset),
-        truth_ratio=truth_ratio, warnings=(*timing, *(f"session: {w}" for w in inputs.warnings)),
-        plot_data={"t": g.t_s, "e": e, "n": n, "swa": swa, "v": v},
-    )
+                out[i] = float(np.mean(sw) / np.mean(rwa))
+    return out
 
 
 def steering_record(cal: SteeringCalibration) -> dict[str, Any]:
@@ -603,23 +664,40 @@ def steering_record(cal: SteeringCalibration) -> dict[str, Any]:
     rows = [r for r in cal.table.rows if r.direction is Direction.FORWARD and r.ratio > 0]
     keys = sorted({round(r.swa_deg, 1) for r in rows})
     ratios = [float(np.mean([r.ratio for r in rows if round(r.swa_deg, 1) == k])) for k in keys]
+    d = cal.to_dict()
     return {"swa_deg": keys, "ratio": ratios, "date": _today(), "session": cal.session,
-            "rows": cal.to_dict()["rows"]}
+            "rows": d["rows"], "flagged": d["flagged"], "sas_zero": d["sas_zero"]}
 
 
 def format_steering(cal: SteeringCalibration) -> str:
     lines = [(f"session {cal.session}: {len(cal.table.rows)} circle(s), wheelbase {cal.table.wheelbase_m:.3f} m, "
-             f"mounting offset in force {cal.mount_offset_deg:+.3f}°"), ""]
-    head = f"  {'direction':<9} {'SWA °':>8} {'R (m)':>8} {'δ °':>8} {'ratio':>8} {'arc °':>7} {'rms mm':>7}"
-    if cal.truth_ratio:
+             f"mounting offset in force {cal.mount_offset_deg:+.3f}°")]
+    z = cal.sas_zero
+    if z is None:
+        lines.append("SAS zero offset: not estimated; SWA used as measured")
+    else:
+        src = ", ".join(f"{x.method} {math.degrees(x.offset_rad):+.3f}° (n = {x.n})" for x in z.sources)
+        lines.append(f"SAS zero offset {z.offset_deg:+.3f}° ± {z.u95_deg:.3f}° (95 %), removed; from {src}")
+    lines.append("")
+    head = (f"  {'direction':<9} {'SWA °':>8} {'R (m)':>8} {'δ °':>8} {'ratio':>8} {'±95 %':>6} {'arc °':>7} "
+            f"{'rms mm':>7}")
+    if cal.truth_ratio or cal.flagged_truth_ratio:
         head += f" {'sim ratio':>9} {'err %':>6}"
     lines.append(head)
-    for i, r in enumerate(cal.table.rows):
+
+    def row_line(r: SteeringRatioRow, truth: float | None) -> str:
         s = (f"  {r.direction.value:<9} {r.swa_deg:8.1f} {r.radius_m:8.2f} {r.delta_deg:8.3f} {r.ratio:8.3f} "
-             f"{math.degrees(r.arc_rad):7.0f} {1000 * r.rms_residual_m:7.1f}")
-        if i in cal.truth_ratio:
-            s += f" {cal.truth_ratio[i]:9.3f} {100 * (r.ratio / cal.truth_ratio[i] - 1):+6.2f}"
-        lines.append(s)
+             f"{100 * r.ratio_u95:5.2f}% {math.degrees(r.arc_rad):7.0f} {1000 * r.rms_residual_m:7.1f}")
+        if truth is not None:
+            s += f" {truth:9.3f} {100 * (r.ratio / truth - 1):+6.2f}"
+        return s
+
+    for i, r in enumerate(cal.table.rows):
+        lines.append(row_line(r, cal.truth_ratio.get(i)))
+    if cal.table.flagged:
+        lines.append("flagged — too uncertain to be results (not recorded):")
+        for i, r in enumerate(cal.table.flagged):
+            lines.append(row_line(r, cal.flagged_truth_ratio.get(i)))
     for w in (*cal.table.warnings, *cal.warnings):
         lines.append(f"warning: {w}")
     return "\n".join(lines) + "\n"

@@ -575,6 +575,8 @@ class SimulationConfig(_Model):
     start_gps_week: Annotated[int, Field(ge=0)] = 2400
     start_gps_seconds: NonNegative = 345600.0
     true_mount_offset_deg: MountOffsetDeg = 0.0
+    true_swa_offset_deg: Annotated[float, Field(ge=-10.0, le=10.0)] = 0.8
+    """Zero error of the simulated steering-angle sensor (deg, ISO sign: added to the true angle)."""
     true_optical_zero_deg: Annotated[dict[str, float], AfterValidator(_offsets_within_bounds)] = Field(
         default_factory=dict
     )

@@ -267,7 +267,7 @@ class SimWorld:
         self.sync = SyncSchedule.for_truth(self.timebase, -self.lead_s + 0.5, self.duration_s, sync_period_s)
         self.truth_t0_utc_ns = gps_ns_to_unix_ns(self.timebase.truth_start_gps_ns, sim.gnss.leap_seconds)
         self._virtual_can = [c for c in cfg.can if c.interface == "virtual"]
-        self._ecu_config = VscEcuConfig(seed=sim.seed)
+        self._ecu_config = VscEcuConfig(seed=sim.seed, swa_offset_rad=math.radians(sim.true_swa_offset_deg))
         self._host: _DeviceHost | None = _DeviceHost(self) if device_process else None
         # Computed before the clock starts, so the ECU is on time from its first frame.
         self._ecu_outputs: EcuOutputs | None = (

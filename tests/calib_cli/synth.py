@@ -127,6 +127,7 @@ def write_truth_session(
     receivers: Sequence[str] = ("rover_a", "rover_b"),
     can_roles: bool = True,
     seed: int = 7,
+    swa_offset_deg: float = 0.0,
 ) -> Path:
     """Record a session of ``truth`` (t = 0 at GPS time G0) with the real Recorder; returns its base path.
 
@@ -134,7 +135,8 @@ def write_truth_session(
     of the variance a first-order Gauss–Markov process with time constant ``correlation_s``, as in the
     simulated receivers, 30 % white),
     BESTVEL, TIME; CAN at 50 Hz: ESC_SensorCluster (yaw_rate, lat_accel) and SAS_Steering (swa)
-    from the truth; ``/sim/truth``. The receivers' antennas follow ``cfg.receivers``.
+    from the truth (SAS zero error ``swa_offset_deg`` added); ``/sim/truth``. The receivers' antennas follow
+    ``cfg.receivers``.
     """
     rng = np.random.default_rng(seed)
     db = load_dbc(DBC)
@@ -199,7 +201,7 @@ def write_truth_session(
             hc = H0 + (gc - G0) + 300_000
             r = np.interp(tc, truth.t, truth.yaw_rate)
             ay = np.interp(tc, truth.t, truth.ay_meas)
-            swa = np.interp(tc, truth.t, truth.swa)
+            swa = np.interp(tc, truth.t, truth.swa) + math.radians(swa_offset_deg)
             ids = {m: db.get_message_by_name(m).frame_id for m in ("ESC_SensorCluster", "SAS_Steering")}
             rows: list[tuple[int, int, int, bytes]] = []
             for i in range(kc.size):

@@ -11,13 +11,19 @@ import pytest
 from calibration.segments import Direction, find_constant_swa_segments
 from calibration.steering import (
     ManualMethod,
+    SasZeroSource,
+    SteeringRatioRow,
     SteeringRatioTable,
     antenna_to_rear_axle,
+    apply_sas_zero,
     circumradius,
+    combine_sas_zero,
     fit_circle,
     manual_ratio_from_chords,
     manual_ratio_from_diameter,
     road_wheel_angle,
+    sas_zero_from_circle_pairs,
+    sas_zero_from_straights,
     steering_ratio_from_circles,
 )
 from sim_devices.vehicle import Drive, GroundTruth, SteeringGear, VehicleParams, make_scenario, simulate
@@ -193,3 +199,103 @@ def test_manual_half_circle() -> None:
     assert res.to_dict()["method"] == "half circle"
     with pytest.raises(CalibrationError, match="diameter must be a positive length"):
         manual_ratio_from_diameter(1.0, -2.0, wheelbase_m=2.8, track_rear_m=1.55)
+
+
+# ---------------------------------------------------------------------------------------------
+# steering-angle sensor zero offset (issue 16 §2)
+
+
+def _row(swa_meas: float, delta: float, direction: Direction, delta_se: float = math.radians(0.002),
+         duration_s: float = 20.0) -> SteeringRatioRow:
+    radius = PARAMS.wheelbase_m / math.tan(abs(delta))
+    return SteeringRatioRow(swa_rad=swa_meas, direction=direction, radius_m=radius, delta_rad=delta,
+                            ratio=swa_meas / delta, n_points=400, rms_residual_m=0.003, arc_rad=math.radians(100.0),
+                            t_start_s=0.0, duration_s=duration_s, delta_se_rad=delta_se,
+                            ratio_u95=1.96 * delta_se / abs(delta))
+
+
+@pytest.mark.parametrize("holds", ["true angles (robot)", "measured angles (driver)"])
+@pytest.mark.parametrize("offset_deg", [-1.9, 0.8, 1.5])
+def test_sas_zero_from_left_right_pairs_of_the_nonlinear_gear(holds: str, offset_deg: float) -> None:
+    """c from pairs at ±65 … ±520° of the simulator's (odd, nonlinear) gear, forward and reverse, with the
+    slip bias (δ_kin = δ(1 ∓ 0.2 %), the same on both sides) and whichever angles were held symmetric."""
+    gear = SteeringGear(PARAMS)
+    c = math.radians(offset_deg)
+    rows = []
+    for direction, slip in ((Direction.FORWARD, -0.002), (Direction.REVERSE, 0.002)):
+        for x in (65.0, 130.0, 260.0, 520.0):
+            for sgn in (1.0, -1.0):
+                held = sgn * math.radians(x)
+                true = held if holds.startswith("true") else held - c
+                delta = float(gear.road_wheel_angle(true)) * (1.0 + slip)
+                rows.append(_row(true + c, delta, direction))
+    src = sas_zero_from_circle_pairs(rows)
+    assert src is not None and src.method == "circle pairs" and src.n == 8
+    assert math.degrees(src.offset_rad) == pytest.approx(offset_deg, abs=0.01)
+    # one side only: no pair, no estimate
+    assert sas_zero_from_circle_pairs([r for r in rows if r.swa_rad > 0]) is None
+
+
+def test_sas_zero_from_straight_runs_while_the_driver_weaves() -> None:
+    """SWA = c + G·κ: the intercept at zero curvature, though the mean SWA is biased by the weaving."""
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 20.0, 0.05)
+    v = np.full(t.size, 40.0 / 3.6)
+    kappa = 0.0008 + 0.0015 * np.sin(2 * math.pi * 0.2 * t)  # a slow weave, mostly to one side
+    c = math.radians(-1.3)
+    gain = 16.0 * (PARAMS.wheelbase_m + PARAMS.understeer_gradient_rad_per_mps2 * v[0] ** 2)
+    swa = c + gain * kappa + rng.normal(0.0, math.radians(0.05), t.size)
+    halves = [t < 9.0, t > 11.0]
+    src = sas_zero_from_straights(t, swa, kappa * v, v, halves)
+    assert src is not None and src.n == int(sum(int(h.sum()) for h in halves))
+    assert math.degrees(src.offset_rad) == pytest.approx(-1.3, abs=3 * math.degrees(src.se_rad))
+    assert math.degrees(src.se_rad) < 0.02
+    assert abs(float(np.mean(swa)) - c) > math.radians(0.5)  # the plain mean would be wrong
+    assert sas_zero_from_straights(t, swa, kappa * v, v, [t < 1.0]) is None  # too few samples
+    with pytest.raises(CalibrationError, match="mask has shape"):
+        sas_zero_from_straights(t, swa, kappa * v, v, [np.ones(3, dtype=bool)])
+
+
+def test_combining_the_estimates() -> None:
+    a = SasZeroSource("circle pairs", math.radians(0.80), math.radians(0.02), 8)
+    b = SasZeroSource("straight runs", math.radians(0.81), math.radians(0.02), 300)
+    z = combine_sas_zero([a, None, b])
+    assert z.offset_deg == pytest.approx(0.805, abs=1e-9) and not z.warnings
+    assert z.u95_deg == pytest.approx(1.96 * 0.02 / math.sqrt(2), rel=1e-3)
+    far = SasZeroSource("straight runs", math.radians(1.3), math.radians(0.02), 300)
+    z2 = combine_sas_zero([a, far])
+    assert z2.warnings and "disagree" in z2.warnings[0] and z2.u95_deg > 0.3  # widened by the Birge ratio
+    # a quantised steady angle does not average below its resolution
+    exact = SasZeroSource("straight runs", math.radians(0.8), 0.0, 300)
+    z3 = combine_sas_zero([exact], resolution_rad=math.radians(0.1))
+    assert z3.u95_deg == pytest.approx(1.96 * 0.1 / math.sqrt(12.0), rel=1e-3)
+    with pytest.raises(CalibrationError, match="no estimate"):
+        combine_sas_zero([None, None])
+    assert z.to_dict()["sources"][0]["method"] == "circle pairs"  # type: ignore[index]
+
+
+def test_applying_the_zero_and_flagging_uncertain_rows() -> None:
+    """The zero leaves every row; a row whose ratio is uncertain beyond 1 % (95 %) is flagged, not a result."""
+    gear = SteeringGear(PARAMS)
+    c = math.radians(1.5)
+    rows = []
+    for x in (-65.0, 65.0, 260.0):
+        s_true = math.radians(x)
+        rows.append(_row(s_true + c, float(gear.road_wheel_angle(s_true)), Direction.FORWARD))
+    # a short hold at 65°: the radius is poorly determined (δ ± 0.6 %, 1σ)
+    d = float(gear.road_wheel_angle(math.radians(65.0)))
+    rows.append(_row(math.radians(65.0) + c, d, Direction.REVERSE, delta_se=0.006 * d, duration_s=8.0))
+    table = SteeringRatioTable(PARAMS.wheelbase_m, tuple(rows))
+    raw_errors = [abs(r.ratio / ((r.swa_rad - c) / r.delta_rad) - 1.0) for r in rows[:2]]
+    assert min(raw_errors) > 0.02  # 1.5° at ±65°: 2.3 % off before the zero is removed
+    zero = combine_sas_zero([sas_zero_from_circle_pairs(rows)])
+    out = apply_sas_zero(table, zero)
+    assert [r.direction for r in out.flagged] == [Direction.REVERSE] and len(out.rows) == 3
+    assert any("too uncertain for a 1 % row" in w and "8 s hold" in w for w in out.warnings)
+    for r, x in zip(out.rows, (-65.0, 65.0, 260.0), strict=True):
+        assert r.swa_deg == pytest.approx(x, abs=0.01)  # the true angle again
+        assert r.ratio == pytest.approx(float(r.swa_rad / gear.road_wheel_angle(r.swa_rad)), rel=1e-3)
+        assert r.swa_zero_removed_rad == pytest.approx(zero.offset_rad) and r.ratio_u95 < 0.01
+    again = SteeringRatioTable.from_dict(out.to_dict())
+    assert len(again.flagged) == 1 and again.rows[0].ratio_u95 == pytest.approx(out.rows[0].ratio_u95)
+    assert out.to_dict()["sas_zero"]["offset_deg"] == pytest.approx(1.5, abs=0.01)  # type: ignore[index]
