@@ -28,7 +28,7 @@ import json
 import logging
 import math
 import os
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -400,3 +400,833 @@ def _optical_sensor(topic: str) -> str | None:
     except ValueError:
         return None
     return params["sensor"] if spec.pattern == "/optical/{sensor}" else None
+
+
+# ---------------------------------------------------------------------------------------------
+# Streaming table exports: MDF4, Parquet, MAT
+# ---------------------------------------------------------------------------------------------
+
+
+class ExportFormat(StrEnum):
+    """Output format of ``rig export --format``."""
+
+    MDF4 = "mdf4"
+    PARQUET = "parquet"
+    MAT = "mat"
+    CSV = "csv"
+
+
+class GroupKind(StrEnum):
+    """What a topic group (one output table / channel group / struct) holds."""
+
+    GNSS = "gnss"
+    CAN_FRAMES = "can_frames"
+    CAN_ROLES = "can_roles"
+    DAQ = "daq"
+    OPTICAL = "optical"
+    TRUTH = "truth"
+    EVENTS = "events"
+    TIMEBASE = "timebase"
+    RELAY = "relay"
+
+
+MF4_EXTRA = "vsc-rig[mf4]"
+_UNIT_OF_SUFFIX = {
+    "deg": "deg", "m": "m", "mps": "m/s", "mps2": "m/s²", "s": "s", "ns": "ns", "rad": "rad", "radps": "rad/s",
+    "ppm": "ppm", "bps": "B/s", "hz": "Hz", "v": "V", "pa": "Pa", "kmh": "km/h", "bar": "bar", "n": "N",
+}
+_SUFFIX_OF_UNIT = {
+    "rad/s": "radps", "m/s": "mps", "m/s²": "mps2", "m/s^2": "mps2", "m/s2": "mps2", "rad": "rad", "deg": "deg",
+    "Pa": "pa", "m": "m", "N": "n", "s": "s", "V": "v", "km/h": "kmh", "bar": "bar", "deg/s": "degps", "g": "g",
+    "Hz": "hz", "1/m": "per_m",
+}
+_TRUTH_UNITS = {
+    "east": "m", "north": "m", "yaw": "rad", "vx": "m/s", "vy": "m/s", "yaw_rate": "rad/s", "ax": "m/s²",
+    "ay": "m/s²", "ax_meas": "m/s²", "ay_meas": "m/s²", "roll": "rad", "roll_rate": "rad/s",
+    "road_wheel_angle": "rad", "swa": "rad", "wheel_speed": "m/s", "wheel_load": "N", "ltr": "",
+}
+_WHEELS = ("fl", "fr", "rl", "rr")
+_CHUNK_ROWS = 20_000
+"""JSON messages (or CAN / DAQ blocks × their rows) gathered per topic before a batch is written."""
+
+
+def unit_suffix(unit: str) -> str:
+    """The column-name suffix of a unit: ``rad/s`` → ``radps``, ``m/s²`` → ``mps2``, ``""`` → ``""``."""
+    if not unit or unit == "1":
+        return ""
+    known = _SUFFIX_OF_UNIT.get(unit)
+    if known is not None:
+        return known
+    return "".join(c if c.isalnum() else "_" for c in unit).strip("_").lower()
+
+
+def unit_of_column(name: str) -> str:
+    """The unit a column name carries in its suffix (``lat_deg`` → ``deg``; none → ``""``)."""
+    if name in ("time_ns", "host_ns", "device_ns", "gps_time_ns"):
+        return "ns"
+    if name == "time_s":
+        return "s"
+    tail = name.rsplit("_", 1)[-1].lower() if "_" in name else ""
+    return _UNIT_OF_SUFFIX.get(tail, "")
+
+
+@dataclass(slots=True)
+class GroupChunk:
+    """Rows of one topic group, from one stretch of the session (written as one row group / data block)."""
+
+    group: str
+    """Output name: ``gnss_rover_a_bestpos``, ``can_vsc_frames``, ``can_vsc_roles``, ``daq_SimDAQ``, …"""
+    kind: GroupKind
+    time_ns: npt.NDArray[np.int64]
+    columns: dict[str, npt.NDArray[Any]]
+    """Column name (unit-suffixed where the quantity has a unit) → values, one per row."""
+    units: dict[str, str]
+    nullable_int: frozenset[str] = frozenset()
+    """Integer columns held as object arrays of int or None (JSON integers that may be null)."""
+
+    def __len__(self) -> int:
+        return int(self.time_ns.shape[0])
+
+    def numeric(self, name: str) -> npt.NDArray[Any]:
+        """Column ``name`` with nullable integers as float64 (NaN for null)."""
+        v = self.columns[name]
+        if name in self.nullable_int:
+            return np.asarray([np.nan if x is None else float(x) for x in v.tolist()], dtype=np.float64)
+        return v
+
+
+def _group_of_topic(topic: str) -> tuple[str, GroupKind] | None:
+    """The output group of a topic (None: not exported as a table: raw bytes, LocationFix, live role JSON)."""
+    if topic == T.TOPIC_EVENTS:
+        return "events", GroupKind.EVENTS
+    if topic == T.TOPIC_TIMEBASE:
+        return "timebase", GroupKind.TIMEBASE
+    if topic == T.TOPIC_RELAY_STATS:
+        return "relay_stats", GroupKind.RELAY
+    if topic == T.TOPIC_SIM_TRUTH:
+        return "truth", GroupKind.TRUTH
+    try:
+        spec, params = T.spec_for_topic(topic)
+    except ValueError:
+        return None
+    if spec.pattern.startswith("/gnss/{receiver}/") and spec.pattern.rsplit("/", 1)[-1] not in ("raw", "fix"):
+        return f"gnss_{params['receiver']}_{spec.pattern.rsplit('/', 1)[-1]}", GroupKind.GNSS
+    if spec.pattern == "/can/{bus}/frames":
+        return f"can_{params['bus']}_frames", GroupKind.CAN_FRAMES
+    if spec.pattern == "/daq/{device}/samples":
+        return f"daq_{params['device']}", GroupKind.DAQ
+    if spec.pattern == "/optical/{sensor}":
+        return f"optical_{params['sensor']}", GroupKind.OPTICAL
+    return None
+
+
+def _schema_types(topic: str) -> dict[str, str]:
+    """JSON-schema type of each top-level property of a JSON topic (fixes column types across batches)."""
+    try:
+        if topic in (T.TOPIC_EVENTS, T.TOPIC_TIMEBASE, T.TOPIC_RELAY_STATS):
+            spec = next(s for s in T.TOPICS if s.pattern == topic)
+        else:
+            spec = T.spec_for_topic(topic)[0]
+    except (ValueError, StopIteration):
+        return {}
+    doc = spec.schema.document
+    props: Mapping[str, Any] = doc.get("properties", {}) if isinstance(doc, Mapping) else {}
+    out: dict[str, str] = {}
+    for name, p in props.items():
+        t = p.get("type", "object") if isinstance(p, dict) else "object"
+        if isinstance(t, list):
+            t = next((x for x in t if x != "null"), "object")
+        out[name] = str(t)
+    return out
+
+
+def _json_chunk(group: str, kind: GroupKind, topic: str, log_time: list[int], host: list[int],
+                data: list[bytes]) -> GroupChunk:
+    rows = [json.loads(d) for d in data]
+    types = _schema_types(topic)
+    names = list(types) or sorted({k for r in rows for k in r})
+    cols: dict[str, npt.NDArray[Any]] = {"host_ns": np.asarray(host, dtype=np.int64)}
+    nullable: set[str] = set()
+    for name in names:
+        t = types.get(name, "object")
+        vals = [r.get(name) for r in rows]
+        if t == "number":
+            cols[name] = np.asarray([np.nan if v is None else float(v) for v in vals], dtype=np.float64)
+        elif t == "integer":
+            arr = np.empty(len(vals), dtype=object)
+            arr[:] = [None if v is None else int(v) for v in vals]
+            cols[name] = arr
+            nullable.add(name)
+        elif t == "boolean":
+            cols[name] = np.asarray([bool(v) for v in vals], dtype=bool)
+        elif t == "string":
+            cols[name] = np.asarray(["" if v is None else str(v) for v in vals], dtype=object)
+        else:
+            cols[name] = np.asarray(["" if v is None else json.dumps(v, separators=(",", ":")) for v in vals],
+                                    dtype=object)
+    if kind is GroupKind.EVENTS and "time_ns" in cols:
+        cols["event_time_ns"] = cols.pop("time_ns")
+        nullable = {"event_time_ns" if n == "time_ns" else n for n in nullable}
+    units = {k: unit_of_column(k) for k in cols}
+    return GroupChunk(group, kind, np.asarray(log_time, dtype=np.int64), cols, units, frozenset(nullable))
+
+
+def _can_chunk(group: str, log_time: list[int], data: list[bytes]) -> GroupChunk:
+    """Every frame of the blocks; a frame's time is its block's log time (the live time base's estimate for
+    the block's first frame) plus its offset from that frame on the interface clock (host clock without one)."""
+    recs = [T.unpack_can_block(d) for d in data]
+    width = max((r.dtype["data"].shape[0] for r in recs), default=8)
+    times: list[npt.NDArray[np.int64]] = []
+    for t0, r in zip(log_time, recs, strict=True):
+        dev = r["device_ts_ns"].astype(np.int64)
+        clock = dev if r.shape[0] and bool(np.all(dev != T.NO_TIME_NS)) else r["host_ts_ns"].astype(np.int64)
+        times.append(t0 + (clock - clock[0]) if r.shape[0] else np.zeros(0, dtype=np.int64))
+    rec = np.concatenate([r if r.dtype["data"].shape[0] == width else _widen(r, width) for r in recs]) if recs \
+        else np.zeros(0, dtype=T.can_dtype(8))
+    flags = rec["flags"].astype(np.uint8)
+    cols: dict[str, npt.NDArray[Any]] = {
+        "host_ns": rec["host_ts_ns"].astype(np.int64),
+        "device_ns": rec["device_ts_ns"].astype(np.int64),
+        "can_id": (rec["can_id"] & np.uint32(0x1FFFFFFF)).astype(np.uint32),
+        "extended": (flags & T.CanFlag.EXTENDED) != 0,
+        "error_frame": (flags & T.CanFlag.ERROR) != 0,
+        "remote_frame": (flags & T.CanFlag.REMOTE) != 0,
+        "fd": (flags & T.CanFlag.FD) != 0,
+        "rx": (flags & T.CanFlag.RX) != 0,
+        "dlc": rec["dlc"].astype(np.uint8),
+        "len": rec["len"].astype(np.uint8),
+        "data": np.ascontiguousarray(rec["data"]),
+    }
+    t = np.concatenate(times) if times else np.zeros(0, dtype=np.int64)
+    return GroupChunk(group, GroupKind.CAN_FRAMES, t, cols, {k: unit_of_column(k) for k in cols})
+
+
+def _widen(rec: npt.NDArray[Any], width: int) -> npt.NDArray[Any]:
+    out = np.zeros(rec.shape[0], dtype=T.can_dtype(width))
+    for name in rec.dtype.names or ():
+        if name == "data":
+            out["data"][:, : rec.dtype["data"].shape[0]] = rec["data"]
+        else:
+            out[name] = rec[name]
+    return out
+
+
+def _daq_chunk(group: str, log_time: list[int], data: list[bytes]) -> GroupChunk:
+    """Samples of the blocks in volts (float32, lossless for the DAQ's int16 counts and float32 volts); a
+    sample's time is its block's log time plus its index offset at the nominal rate."""
+    blocks = [T.unpack_daq_block(d) for d in data]
+    names = blocks[0].channel_names
+    idx = np.concatenate([np.arange(b.first_sample_index, b.first_sample_index + b.samples.shape[1],
+                                    dtype=np.int64) for b in blocks])
+    t = np.concatenate([t0 + np.round(np.arange(b.samples.shape[1]) * (1e9 / b.rate_hz)).astype(np.int64)
+                        for t0, b in zip(log_time, blocks, strict=True)])
+    volts = np.concatenate([b.volts().astype(np.float32) for b in blocks], axis=1)
+    cols: dict[str, npt.NDArray[Any]] = {"sample_index": idx}
+    units = {"sample_index": ""}
+    for i, n in enumerate(names):
+        cols[f"{n}_V"] = volts[i]
+        units[f"{n}_V"] = "V"
+    return GroupChunk(group, GroupKind.DAQ, t, cols, units)
+
+
+def _truth_chunk(data: list[bytes]) -> GroupChunk:
+    rec = np.concatenate([T.unpack_truth_block(d)[0] for d in data])
+    cols: dict[str, npt.NDArray[Any]] = {"t_drive_s": rec["t_s"].astype(np.float64)}
+    units = {"t_drive_s": "s"}
+    for name, unit in _TRUTH_UNITS.items():
+        v = rec[name]
+        sfx = unit_suffix(unit)
+        if v.ndim == 2:
+            for j, w in enumerate(_WHEELS):
+                col = f"{name}_{w}" + (f"_{sfx}" if sfx else "")
+                cols[col], units[col] = np.ascontiguousarray(v[:, j], dtype=np.float64), unit
+        else:
+            col = name + (f"_{sfx}" if sfx else "")
+            cols[col], units[col] = v.astype(np.float64), unit
+    return GroupChunk("truth", GroupKind.TRUTH, rec["time_ns"].astype(np.int64), cols, units)
+
+
+@dataclass(slots=True)
+class _RoleDecoding:
+    bus: str
+    decoder: Any
+    roles: tuple[tuple[str, str], ...]
+    """(role, SI unit) in the role map's order."""
+
+
+def _session_attachments(parts: Sequence[Path]) -> dict[str, bytes]:
+    from mcap.reader import make_reader
+
+    out: dict[str, bytes] = {}
+    if not parts:
+        return out
+    try:
+        with open(parts[0], "rb") as f:
+            for a in make_reader(f).iter_attachments():
+                out[a.name] = bytes(a.data)
+    except Exception as exc:  # a damaged summary: no attachments, said in the warning
+        log.warning("%s: attachments not readable: %s", parts[0], exc)
+    return out
+
+
+def _role_decoding(path: Path, attachments: Mapping[str, bytes], bus: str) -> _RoleDecoding:
+    """The VectorRoleDecoder of ``bus`` from the session's attached DBC and role map (as rig.dataset finds them)."""
+    import tomllib
+
+    from drivers.can.dbc import parse_dbc_text
+    from drivers.can.roles import RoleMap
+    from drivers.can.vector_decode import VectorRoleDecoder
+
+    dbcs = [n for n in attachments if n.lower().endswith(".dbc")]
+    if len(dbcs) != 1:
+        raise AnalysisError(f"{path}: cannot choose a DBC attachment (attached: {sorted(attachments)})")
+    db = parse_dbc_text(attachments[dbcs[0]].decode("utf-8", "replace"), source=f"{path}:{dbcs[0]}")
+    name = f"{bus}.roles.toml"
+    if name not in attachments:
+        cands = [n for n in attachments if "roles" in n and n.endswith(".toml")]
+        if len(cands) != 1:
+            raise AnalysisError(f"{path}: no role map for bus {bus!r} among the attachments {sorted(attachments)}")
+        name = cands[0]
+    try:
+        doc = tomllib.loads(attachments[name].decode())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise AnalysisError(f"{path}: attachment {name!r} is not a readable role map: {exc}") from exc
+    table = doc if ("roles" in doc or "checks" in doc) else doc.get("can", {})
+    rm = RoleMap.from_mapping(table, db, source=f"{path}:{name}")
+    return _RoleDecoding(bus, VectorRoleDecoder(db, rm), tuple((s.role, s.si_unit) for s in rm.roles))
+
+
+def _roles_chunk(rd: _RoleDecoding, frames: GroupChunk) -> GroupChunk | None:
+    """The roles the frames carry, wide: one column per role (``<role>_<unit>``, NaN where a frame does not
+    carry it), ``<role>_ok``; one row per frame that carries a role."""
+    from drivers.can.checks import CAN_EFF_FLAG
+    from drivers.can.vector_decode import FrameBatch
+
+    c = frames.columns
+    keep = ~(c["error_frame"] | c["remote_frame"])
+    ids = np.where(c["extended"][keep], c["can_id"][keep] | np.uint32(CAN_EFF_FLAG), c["can_id"][keep])
+    batch = FrameBatch(frames.time_ns[keep], ids.astype(np.uint32), c["data"][keep], c["len"][keep].astype(np.int16))
+    result = rd.decoder.decode(batch)
+    rows = np.unique(np.concatenate([np.asarray(s.batch_index, dtype=np.int64) for s in result.roles.values()]
+                                    or [np.zeros(0, dtype=np.int64)]))
+    if rows.size == 0:
+        return None
+    cols: dict[str, npt.NDArray[Any]] = {"can_id": c["can_id"][keep][rows]}
+    units = {"can_id": ""}
+    for role, unit in rd.roles:
+        s = result.roles.get(role)
+        sfx = unit_suffix(unit)
+        name = role + (f"_{sfx}" if sfx else "")
+        v = np.full(rows.size, np.nan)
+        ok = np.zeros(rows.size, dtype=bool)
+        if s is not None and len(s.values):
+            pos = np.searchsorted(rows, np.asarray(s.batch_index, dtype=np.int64))
+            v[pos] = s.values
+            ok[pos] = s.ok
+        cols[name], units[name] = v, unit
+        cols[f"{role}_ok"], units[f"{role}_ok"] = ok, ""
+    return GroupChunk(f"can_{rd.bus}_roles", GroupKind.CAN_ROLES, batch.timestamps_ns[rows], cols, units)
+
+
+@dataclass(slots=True)
+class _Pending:
+    topic: str
+    group: str
+    kind: GroupKind
+    log_time: list[int] = field(default_factory=list)
+    host: list[int] = field(default_factory=list)
+    data: list[bytes] = field(default_factory=list)
+    rows: int = 0
+
+
+@dataclass(slots=True)
+class SessionStream:
+    """What :func:`iter_groups` read: the session's start, parts and attachments, and what it noticed."""
+
+    path: Path
+    parts: tuple[Path, ...]
+    name: str
+    start_ns: int = 0
+    end_ns: int = 0
+    attachments: dict[str, bytes] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    dbc_name: str | None = None
+
+
+def open_stream(path: Path | str) -> SessionStream:
+    """The parts of a session, its time span (from the parts' summaries) and attachments."""
+    from mcap.reader import make_reader
+
+    parts = tuple(find_parts(path))
+    name = parts[0].name.split(".")[0] if parts else Path(path).name
+    st = SessionStream(Path(path), parts, name, attachments=_session_attachments(parts))
+    lo: int | None = None
+    hi: int | None = None
+    for p in parts:
+        try:
+            with open(p, "rb") as f:
+                summary = make_reader(f).get_summary()
+        except Exception:  # an unfinished part has no summary: its span is learnt while reading
+            summary = None
+        if summary is not None and summary.statistics is not None and summary.statistics.message_count:
+            s = summary.statistics
+            lo = s.message_start_time if lo is None else min(lo, s.message_start_time)
+            hi = s.message_end_time if hi is None else max(hi, s.message_end_time)
+    st.start_ns, st.end_ns = lo or 0, hi or 0
+    dbcs = [n for n in st.attachments if n.lower().endswith(".dbc")]
+    st.dbc_name = dbcs[0] if len(dbcs) == 1 else None
+    return st
+
+
+def iter_groups(
+    stream: SessionStream,
+    *,
+    topics: Sequence[str] | None = None,
+    roles: bool = True,
+    progress: Callable[[int], None] | None = None,
+    chunk_rows: int = _CHUNK_ROWS,
+) -> Iterator[GroupChunk]:
+    """The session's topic groups as :class:`GroupChunk` batches, streamed chunk by chunk through every part.
+
+    Memory holds one MCAP chunk and, per topic, at most ``chunk_rows`` rows waiting to be converted.
+    ``topics``: keep only groups whose name or topic matches one of these (``fnmatch`` patterns, e.g.
+    ``gnss_*`` or ``/can/*``). With ``roles`` each CAN bus's frames are also decoded into its rig roles
+    with the session's attached DBC and role map (a bus without them is noted in ``stream.warnings``).
+    ``progress(log_time_ns)`` is called as the reading advances.
+    """
+    from fnmatch import fnmatchcase
+
+    from mcap.reader import make_reader
+
+    def wanted(topic: str) -> tuple[str, GroupKind] | None:
+        g = _group_of_topic(topic)
+        if g is None:
+            return None
+        if topics and not any(fnmatchcase(g[0], p) or fnmatchcase(topic, p) for p in topics):
+            return None
+        return g
+
+    role_dec: dict[str, _RoleDecoding | None] = {}
+    pending: dict[str, _Pending] = {}
+
+    def convert(p: _Pending) -> Iterator[GroupChunk]:
+        if not p.data:
+            return
+        lt, host, data = p.log_time, p.host, p.data
+        p.log_time, p.host, p.data, p.rows = [], [], [], 0
+        try:
+            if p.kind is GroupKind.CAN_FRAMES:
+                ch = _can_chunk(p.group, lt, data)
+                yield ch
+                bus = T.spec_for_topic(p.topic)[1]["bus"]
+                if roles:
+                    if bus not in role_dec:
+                        try:
+                            role_dec[bus] = _role_decoding(stream.path, stream.attachments, bus)
+                        except (AnalysisError, ConfigError) as exc:
+                            role_dec[bus] = None
+                            stream.warnings.append(f"CAN bus {bus}: roles not exported: {exc}")
+                    rd = role_dec[bus]
+                    if rd is not None:
+                        rc = _roles_chunk(rd, ch)
+                        if rc is not None:
+                            yield rc
+            elif p.kind is GroupKind.DAQ:
+                yield _daq_chunk(p.group, lt, data)
+            elif p.kind is GroupKind.TRUTH:
+                yield _truth_chunk(data)
+            else:
+                yield _json_chunk(p.group, p.kind, p.topic, lt, host, data)
+        except (ValueError, KeyError, TypeError) as exc:
+            raise SessionFileError(f"{stream.path}: topic {p.topic}: undecodable message ({exc})") from exc
+
+    for i, part in enumerate(stream.parts):
+        where = f"{part} (part {i + 1} of {len(stream.parts)})"
+        try:
+            f = open(part, "rb")  # noqa: SIM115 - closed by the with statement
+        except OSError as exc:
+            raise SessionFileError(f"{where}: cannot open session part: {exc}") from exc
+        with f:
+            reader = make_reader(f)
+            try:
+                it = reader.iter_messages(log_time_order=False)
+                for _schema, channel, message in it:
+                    p = pending.get(channel.topic)
+                    if p is None:
+                        g = wanted(channel.topic)
+                        if g is None:
+                            continue
+                        p = pending[channel.topic] = _Pending(channel.topic, g[0], g[1])
+                    p.log_time.append(message.log_time)
+                    p.host.append(message.publish_time)
+                    p.data.append(message.data)
+                    p.rows += 1 if p.kind not in (GroupKind.CAN_FRAMES, GroupKind.DAQ) else 100
+                    if p.rows >= chunk_rows:
+                        if progress is not None:
+                            progress(message.log_time)
+                        yield from convert(p)
+            except SessionFileError:
+                raise
+            except Exception as exc:  # mcap raises many types for a cut or damaged file
+                if i == len(stream.parts) - 1:
+                    stream.warnings.append(f"{where}: {exc}; exported up to the damage (rig recover salvages "
+                                           "every intact chunk)")
+                    log.warning("%s", stream.warnings[-1])
+                else:
+                    raise SessionFileError(f"{where}: {exc} (rig recover salvages every intact chunk)") from exc
+    for p in pending.values():
+        yield from convert(p)
+    if progress is not None:
+        progress(stream.end_ns)
+
+
+# --- writers ------------------------------------------------------------------------------------
+
+
+def _arrow_column(chunk: GroupChunk, name: str) -> Any:
+    import pyarrow as pa
+
+    v = chunk.columns[name]
+    if name in chunk.nullable_int:
+        return pa.array(v.tolist(), pa.int64())
+    if v.dtype == object:
+        return pa.array(v.tolist(), pa.string())
+    if v.ndim == 2:  # CAN payloads: variable-length binary, trimmed to each frame's length
+        lengths = chunk.columns["len"].astype(np.int64)
+        mask = np.arange(v.shape[1])[None, :] < lengths[:, None]
+        offsets = np.zeros(v.shape[0] + 1, dtype=np.int32)
+        np.cumsum(lengths, out=offsets[1:])
+        return pa.BinaryArray.from_buffers(pa.binary(), v.shape[0], [None, pa.py_buffer(offsets.tobytes()),
+                                                                     pa.py_buffer(v[mask].tobytes())])
+    return pa.array(v)
+
+
+def _arrow_table(chunk: GroupChunk, start_ns: int) -> Any:
+    import pyarrow as pa
+
+    arrays = [pa.array(chunk.time_ns, pa.int64()), pa.array((chunk.time_ns - start_ns) / 1e9, pa.float64())]
+    fields = [pa.field("time_ns", pa.int64(), metadata={"unit": "ns", "description": "common time base: UTC ns "
+                                                                                  "since the Unix epoch"}),
+              pa.field("time_s", pa.float64(), metadata={"unit": "s", "description": "seconds since the start "
+                                                                                  "of the session"})]
+    for name in chunk.columns:
+        arr = _arrow_column(chunk, name)
+        meta = {"unit": chunk.units.get(name, "")}
+        fields.append(pa.field(name, arr.type, metadata=meta))
+        arrays.append(arr)
+    return pa.Table.from_arrays(arrays, schema=pa.schema(fields))
+
+
+def _group_path(out: Path, group: str, session: str) -> Path:
+    return out / group / f"session={session}" / "part-0.parquet"
+
+
+def export_parquet(
+    path: Path | str,
+    out_dir: Path | str,
+    *,
+    topics: Sequence[str] | None = None,
+    overwrite: bool = False,
+    progress: Callable[[int, int, int], None] | None = None,
+) -> ExportReport:
+    """Write every topic group of a session as a Parquet dataset, streaming (bounded memory).
+
+    ``<out_dir>/<group>/session=<session name>/part-0.parquet``: one dataset per topic group (a hive
+    partitioning by session, so a campaign's sessions append into the same ``<out_dir>``); each
+    streaming batch is a row group. Columns: ``time_ns`` (int64, common time base), ``time_s`` (float
+    seconds since the session's first message), then the group's columns, unit-suffixed (``lat_deg``,
+    ``yaw_rate_radps``), each field's unit also in its Arrow metadata (``unit``). ``progress(done_ns,
+    start_ns, end_ns)`` follows the log time read. Raises :class:`~vsccore.errors.SessionFileError` for
+    unreadable parts or existing files, :class:`~vsccore.errors.AnalysisError` when nothing is exported.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    out = Path(out_dir)
+    stream = open_stream(path)
+    writers: dict[str, tuple[Any, Path, Any]] = {}
+    rows: dict[str, int] = {}
+    try:
+        for chunk in iter_groups(stream, topics=topics, progress=_progress_fn(progress, stream)):
+            if not len(chunk):
+                continue
+            table = _arrow_table(chunk, stream.start_ns)
+            w = writers.get(chunk.group)
+            if w is None:
+                final = _group_path(out, chunk.group, stream.name)
+                _check_new(final, overwrite)
+                final.parent.mkdir(parents=True, exist_ok=True)
+                schema = table.schema.with_metadata({
+                    "vsc_rig.session": stream.name, "vsc_rig.group": chunk.group, "vsc_rig.kind": chunk.kind.value,
+                    "vsc_rig.session_start_ns": str(stream.start_ns)})
+                w = (pq.ParquetWriter(_partial(final), schema, compression="zstd", compression_level=1), final, schema)
+                writers[chunk.group] = w
+            try:
+                w[0].write_table(pa.Table.from_arrays(table.columns, schema=w[2]))
+            except (pa.ArrowInvalid, pa.ArrowTypeError) as exc:
+                raise SessionFileError(f"{w[1]}: group {chunk.group} changes its columns mid-session: {exc}") from exc
+            rows[chunk.group] = rows.get(chunk.group, 0) + len(chunk)
+        for w, final, _schema in writers.values():
+            w.close()
+            os.replace(_partial(final), final)
+    except BaseException:
+        for w, final, _schema in writers.values():
+            w.close()
+            _partial(final).unlink(missing_ok=True)
+        raise
+    if not writers:
+        raise AnalysisError(f"{path}: nothing to export as Parquet (no table topics"
+                            f"{' matching --topics' if topics else ''})")
+    files = [ExportedFile(final, ExportKind.TABLE, g, final.stat().st_size, rows[g])
+             for g, (_w, final, _s) in sorted(writers.items())]
+    return ExportReport(tuple(files), tuple(stream.warnings))
+
+
+def _progress_fn(progress: Callable[[int, int, int], None] | None, stream: SessionStream
+                 ) -> Callable[[int], None] | None:
+    if progress is None:
+        return None
+    return lambda t: progress(t, stream.start_ns, stream.end_ns)
+
+
+_MDF_STRING_WIDTH = {"text": 256, "details": 512, "utc_iso": 40}
+
+
+def _mdf_samples(chunk: GroupChunk, name: str) -> npt.NDArray[Any]:
+    v = chunk.columns[name]
+    if name in chunk.nullable_int:
+        return chunk.numeric(name)
+    if v.dtype == object:
+        width = _MDF_STRING_WIDTH.get(name, 64)
+        return np.asarray([s.encode("utf-8")[:width] for s in v.tolist()], dtype=f"S{width}")
+    if v.dtype == bool:
+        return v.astype(np.uint8)
+    return v
+
+
+def _can_dataframe(chunk: GroupChunk, width: int) -> tuple[npt.NDArray[Any], npt.NDArray[np.bool_]]:
+    """ASAM MDF bus-logging records (``CAN_DataFrame`` with its ``CAN_DataFrame.*`` fields) of the data frames."""
+    from can.util import len2dlc
+
+    c = chunk.columns
+    keep = ~(c["error_frame"] | c["remote_frame"])
+    n = int(np.count_nonzero(keep))
+    dt = np.dtype([("CAN_DataFrame.BusChannel", "<u1"), ("CAN_DataFrame.ID", "<u4"), ("CAN_DataFrame.IDE", "<u1"),
+                   ("CAN_DataFrame.DLC", "<u1"), ("CAN_DataFrame.DataLength", "<u1"),
+                   ("CAN_DataFrame.DataBytes", "<u1", (width,)), ("CAN_DataFrame.Dir", "<u1"),
+                   ("CAN_DataFrame.EDL", "<u1"), ("CAN_DataFrame.BRS", "<u1"), ("CAN_DataFrame.ESI", "<u1")])
+    rec = np.zeros(n, dtype=dt)
+    rec["CAN_DataFrame.BusChannel"] = 1
+    rec["CAN_DataFrame.ID"] = c["can_id"][keep]
+    rec["CAN_DataFrame.IDE"] = c["extended"][keep]
+    ln = c["len"][keep]
+    rec["CAN_DataFrame.DataLength"] = ln
+    rec["CAN_DataFrame.DLC"] = np.asarray([len2dlc(int(x)) for x in ln.tolist()], dtype=np.uint8) \
+        if bool(np.any(ln > 8)) else ln
+    data = c["data"][keep]
+    w = min(width, data.shape[1])
+    rec["CAN_DataFrame.DataBytes"][:, :w] = data[:, :w]
+    rec["CAN_DataFrame.Dir"] = np.where(c["rx"][keep], 0, 1)
+    rec["CAN_DataFrame.EDL"] = c["fd"][keep]
+    return rec, keep
+
+
+def export_mdf4(
+    path: Path | str,
+    out_dir: Path | str,
+    *,
+    topics: Sequence[str] | None = None,
+    overwrite: bool = False,
+    progress: Callable[[int, int, int], None] | None = None,
+) -> ExportReport:
+    """Write a session as one ASAM MDF 4.10 file ``<out_dir>/<session>.mf4`` through asammdf, streaming.
+
+    - every CAN bus as an ASAM bus-logging channel group (``CAN_DataFrame`` with ``CAN_DataFrame.ID``,
+      ``.DataBytes``, … and a CAN bus source), so CANape and asammdf (``MDF.extract_bus_logging``) decode
+      the raw frames with the DBC, which is attached to the file;
+    - the rig roles decoded from those frames (``can_<bus>_roles``) as physical channels with SI units;
+    - GNSS logs, optical sensors, DAQ channels (volts), the simulator's truth, events and time-base
+      records as channel groups named after the group, channels ``<group>.<column>`` with their units.
+
+    Every group's time is the session's common time base, in seconds from the file's start time (the
+    session's first message, UTC). Appended data goes to asammdf's temporary file, not memory.
+    Raises :class:`~vsccore.errors.ConfigError` naming the ``vsc-rig[mf4]`` extra when asammdf is missing.
+    """
+    try:
+        from asammdf import MDF, Signal
+        from asammdf.blocks.v4_blocks import SourceInformation
+        from asammdf.blocks.v4_constants import BUS_TYPE_CAN, SOURCE_BUS
+    except ImportError:
+        raise ConfigError(f"rig export --format mdf4 needs the asammdf package: install the {MF4_EXTRA} extra "
+                          f"(pip install '{MF4_EXTRA}')") from None
+    from datetime import UTC, datetime
+
+    out = Path(out_dir)
+    stream = open_stream(path)
+    final = out / f"{stream.name}.mf4"
+    _check_new(final, overwrite)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SessionFileError(f"{out}: cannot create the export directory: {exc}") from exc
+    mdf = MDF(version="4.10")
+    mdf.header.start_time = datetime.fromtimestamp(stream.start_ns / 1e9, tz=UTC)
+    attachment: Any = None
+    if stream.dbc_name is not None:
+        import hashlib
+
+        dbc_bytes = stream.attachments[stream.dbc_name]
+        attachment = (dbc_bytes, Path(stream.dbc_name), hashlib.md5(dbc_bytes).digest())
+    groups: dict[str, tuple[int, int]] = {}  # group → (MDF group index, CAN data width or 0)
+    rows: dict[str, int] = {}
+    try:
+        for chunk in iter_groups(stream, topics=topics, progress=_progress_fn(progress, stream)):
+            if not len(chunk):
+                continue
+            t_s = (chunk.time_ns - stream.start_ns) / 1e9
+            if chunk.kind is GroupKind.CAN_FRAMES:
+                known = groups.get(chunk.group)
+                width = known[1] if known else int(chunk.columns["data"].shape[1])
+                rec, keep = _can_dataframe(chunk, width)
+                if known is None:
+                    bus = chunk.group.removeprefix("can_").removesuffix("_frames")
+                    source = SourceInformation(source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN)
+                    source.name = bus
+                    source.path = bus
+                    mdf.append(Signal(samples=rec, timestamps=t_s[keep], name="CAN_DataFrame", source=source,
+                                      attachment=attachment, comment=f"CAN bus {bus}: every data frame"),
+                               acq_name=chunk.group, comment=f"vsc-rig {chunk.group}")
+                    groups[chunk.group] = (len(mdf.groups) - 1, width)
+                else:
+                    mdf.extend(known[0], [(t_s[keep], None), (rec, None)])
+                rows[chunk.group] = rows.get(chunk.group, 0) + len(rec)
+                continue
+            names = list(chunk.columns)
+            known = groups.get(chunk.group)
+            if known is None:
+                samples = {n: _mdf_samples(chunk, n) for n in names}
+                sigs = [Signal(samples=v, timestamps=t_s, name=f"{chunk.group}.{n}", unit=chunk.units.get(n, ""),
+                               comment=n, encoding="utf-8" if v.dtype.kind == "S" else None)
+                        for n, v in samples.items()]
+                mdf.append(sigs, acq_name=chunk.group, comment=f"vsc-rig {chunk.group} ({chunk.kind.value})")
+                groups[chunk.group] = (len(mdf.groups) - 1, 0)
+            else:
+                mdf.extend(known[0], [(t_s, None)] + [(_mdf_samples(chunk, n), None) for n in names])
+            rows[chunk.group] = rows.get(chunk.group, 0) + len(chunk)
+        if not groups:
+            raise AnalysisError(f"{path}: nothing to export as MDF4 (no table topics"
+                                f"{' matching --topics' if topics else ''})")
+        tmp = final.with_name(f".{final.stem}.partial.mf4")  # asammdf keeps a .mf4 suffix
+        saved = Path(mdf.save(tmp, overwrite=True, compression=1))
+        os.replace(saved, final)
+    except BaseException:
+        final.with_name(f".{final.stem}.partial.mf4").unlink(missing_ok=True)
+        raise
+    finally:
+        mdf.close()
+    files = [ExportedFile(final, ExportKind.TABLE, f"{len(groups)} channel groups: " + ", ".join(sorted(groups)),
+                          final.stat().st_size, sum(rows.values()))]
+    return ExportReport(tuple(files), tuple(stream.warnings))
+
+
+def _mat_name(group: str) -> str:
+    name = "".join(c if c.isalnum() or c == "_" else "_" for c in group)
+    if not name[:1].isalpha():
+        name = "g_" + name
+    return name[:63]
+
+
+def export_mat(
+    path: Path | str,
+    out_dir: Path | str,
+    *,
+    topics: Sequence[str] | None = None,
+    overwrite: bool = False,
+    progress: Callable[[int, int, int], None] | None = None,
+    validation: bool = True,
+) -> ExportReport:
+    """Write a session as a MATLAB v5 file ``<out_dir>/<session>.mat`` (scipy.io), one struct per topic group.
+
+    Each struct has ``time_ns`` (int64, common time base), ``time_s`` (seconds since the session's first
+    message), the group's columns (unit-suffixed names) and ``units`` (a struct: column → unit). Raw CAN
+    frames are left out (MDF4 and Parquet carry them; the decoded roles are here as ``can_<bus>_roles``).
+    With ``validation`` a ``sideslip`` struct holds the GNSS reference sideslip, the VSC estimate and the
+    error on one time vector (``rig validate``'s computation; skipped with a warning when the session lacks
+    what it needs). Groups are read streaming and written one variable at a time: memory holds the
+    largest group's arrays.
+    """
+    from scipy.io.matlab import savemat
+
+    out = Path(out_dir)
+    stream = open_stream(path)
+    final = out / f"{stream.name}.mat"
+    _check_new(final, overwrite)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SessionFileError(f"{out}: cannot create the export directory: {exc}") from exc
+    gathered: dict[str, list[GroupChunk]] = {}
+    for chunk in iter_groups(stream, topics=topics, progress=_progress_fn(progress, stream)):
+        if chunk.kind is GroupKind.CAN_FRAMES or not len(chunk):
+            continue
+        gathered.setdefault(chunk.group, []).append(chunk)
+    warnings = list(stream.warnings)
+    structs: dict[str, dict[str, Any]] = {}
+    rows: dict[str, int] = {}
+    for group, chunks in gathered.items():
+        t = np.concatenate([c.time_ns for c in chunks])
+        st: dict[str, Any] = {"time_ns": t, "time_s": (t - stream.start_ns) / 1e9}
+        units: dict[str, str] = {"time_ns": "ns", "time_s": "s"}
+        for name in chunks[0].columns:
+            parts = [c.numeric(name) for c in chunks]
+            v = np.concatenate(parts)
+            if v.dtype == object:
+                v = np.asarray([str(x) for x in v.tolist()], dtype=object)
+            st[_mat_name(name)] = v
+            units[_mat_name(name)] = chunks[0].units.get(name, "")
+        st["units"] = units
+        structs[_mat_name(group)] = st
+        rows[group] = int(t.size)
+    if validation:
+        try:
+            from rig.sessiondata import load_inputs
+            from rig.validate import validate_session
+
+            inp = load_inputs(stream.path)
+            sv = validate_session(inp)
+        except (AnalysisError, ConfigError, SessionFileError) as exc:
+            warnings.append(f"sideslip: reference and estimate not exported: {exc}")
+        else:
+            t_ns = inp.t0_ns + np.round(np.asarray(sv.t_s, dtype=np.float64) * 1e9).astype(np.int64)
+            structs["sideslip"] = {
+                "time_ns": t_ns,
+                "time_s": (t_ns - stream.start_ns) / 1e9,
+                "reference_rad": np.asarray(sv.reference.beta, dtype=np.float64),
+                "reference_sigma_rad": np.asarray(sv.reference.sigma, dtype=np.float64),
+                "estimate_rad": np.asarray(sv.estimate_rad, dtype=np.float64),
+                "error_rad": np.asarray(sv.error_rad, dtype=np.float64),
+                "units": {"time_ns": "ns", "time_s": "s", "reference_rad": "rad", "reference_sigma_rad": "rad",
+                          "estimate_rad": "rad", "error_rad": "rad"},
+            }
+            rows["sideslip"] = int(sv.t_s.size)
+    if not structs:
+        raise AnalysisError(f"{path}: nothing to export as MAT (no table topics"
+                            f"{' matching --topics' if topics else ''})")
+    structs["session"] = {"name": stream.name, "start_ns": np.int64(stream.start_ns),
+                          "start_utc": _utc_text(stream.start_ns)}
+    tmp = _partial(final)
+    try:
+        savemat(tmp, structs, do_compression=True, long_field_names=True, oned_as="column")
+        os.replace(tmp, final)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise SessionFileError(f"{final}: cannot write the MAT file: {exc}") from exc
+    files = [ExportedFile(final, ExportKind.TABLE, f"{len(structs)} structs: " + ", ".join(sorted(structs)),
+                          final.stat().st_size, sum(rows.values()))]
+    return ExportReport(tuple(files), tuple(warnings))
+
+
+def _utc_text(t_ns: int) -> str:
+    from datetime import UTC, datetime
+
+    return datetime.fromtimestamp(t_ns / 1e9, tz=UTC).isoformat()
