@@ -7,8 +7,10 @@ attachments. :func:`info_to_json` and :func:`format_info` are pure functions of 
 
 Fast path: a finalized part is read from its summary section (statistics, chunk indexes, metadata
 and attachment indexes) and its message-index records, which give every message's log time without
-decompressing a chunk; only the chunks holding ``/rig/events``, ``/rig/timebase`` and
-``/relay/stats`` messages are decompressed. That path does not check chunk CRCs; ``verify=True``
+decompressing a chunk; only the chunks holding ``/rig/events`` and ``/rig/timebase`` messages are
+decompressed, and only those messages are decoded. The time-base verdicts are either the recorder's
+own, recorded at the end of the recording (``rig info``), or computed again from every stream
+(:class:`VerdictSource`). That path does not check chunk CRCs; ``verify=True``
 (``rig info --verify``) scans every part instead, checking every chunk's CRC and the summary's, and
 reports damaged chunks ("damaged: N chunks, T s of data"). A part without a usable summary or message index (a
 crashed part, a ``rig recover`` copy) is scanned instead (:func:`rig.recorder.reader.scan_part`,
@@ -48,7 +50,9 @@ where a value is unknown:
 - ``timebase``: {``records``, ``clocks``: [the last ``/rig/timebase`` record of each clock: ``clock``,
   ``method``, ``reference``, ``status``, ``n``, ``span_s``, ``offset_ns``, ``drift_ppm``, ``jitter_ns``,
   ``latency_p50_ns``, ``latency_p95_ns``, ``rms_ns``, ``max_abs_ns``, ``leap_seconds``, ``time_ns``,
-  ``records``], ``verdicts``: {``problem``, ``streams``: {stream: :meth:`rig.quality.StreamQuality.to_json`}}};
+  ``records``], ``verdicts``: {``problem``, ``streams``: {stream: :meth:`rig.quality.StreamQuality.to_json`},
+  ``source`` (recorded|data: the recorder's verdicts at the end of the recording, or computed from the
+  data — ``rig info --verify``; see :class:`VerdictSource`)}};
 - ``calibration``: the calibration metadata in force, flat ``{key: value text}`` as recorded;
 - ``calibration_file``: the calibration results next to the session (``<base>.calibration.json``,
   written by ``rig calibrate-baseline`` and the other ``rig calibrate-*`` commands), or ``null`` when
@@ -77,8 +81,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 from mcap.data_stream import ReadDataStream
-from mcap.reader import make_reader
-from mcap.records import Metadata
+from mcap.records import AttachmentIndex, Channel, ChunkIndex, Metadata, MetadataIndex, Schema, Statistics
 
 import rig.topics as T  # noqa: N812 - the module is used as a namespace of topic names
 from rig.recorder.reader import (
@@ -112,6 +115,8 @@ __all__ = [
     "ReadVia",
     "SessionInfo",
     "TopicInfo",
+    "VerdictSource",
+    "VerdictsInfo",
     "format_info",
     "format_utc",
     "info_to_json",
@@ -150,7 +155,7 @@ INFO_JSON_KEYS = (
 """Top-level keys of the JSON document, in order (documented in this module's docstring)."""
 
 _NS = 1_000_000_000
-_PAYLOAD_TOPICS = frozenset({T.TOPIC_EVENTS, T.TOPIC_TIMEBASE, T.TOPIC_RELAY_STATS})
+_PAYLOAD_TOPICS = frozenset({T.TOPIC_EVENTS, T.TOPIC_TIMEBASE})
 """Topics whose messages ``rig info`` decodes (small, JSON)."""
 _NOT_PERIODIC = frozenset({"/rig/events", "/rig/timebase", "/gnss/{receiver}/markpos", "/gnss/{receiver}/marktime"})
 """Topic families that are not periodic: no gap check."""
@@ -173,6 +178,30 @@ _FOOTER_RECORD = 1 + 8 + 8 + 8 + 4
 # ---------------------------------------------------------------------------------------------
 # Result types
 # ---------------------------------------------------------------------------------------------
+
+
+class VerdictSource(StrEnum):
+    """Where the time-base verdicts that ``rig info`` shows come from."""
+
+    DATA = "data"
+    """Computed from the recorded streams (:func:`rig.quality.session_verdicts`): every stream is read
+    and decoded, seconds on a long session (``rig info --verify``, and :func:`read_session_info`'s default)."""
+    RECORDED = "recorded"
+    """The recorder's own verdicts at the end of the recording (the last ``timebase`` event in
+    ``/rig/events`` that carries ``verdicts``): nothing beyond the events is read (``rig info``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class VerdictsInfo:
+    """The time-base verdicts block of ``rig info``."""
+
+    source: VerdictSource
+    lines: tuple[str, ...]
+    """One line per stream and its gaps (:func:`rig.quality.verdict_lines`), or why there are none."""
+    streams: Mapping[str, Any] = field(default_factory=dict)
+    """stream → :meth:`rig.quality.StreamQuality.to_json`."""
+    problem: str | None = None
+    """Why no verdicts could be given (then ``streams`` is empty)."""
 
 
 class ReadVia(StrEnum):
@@ -388,6 +417,8 @@ class SessionInfo:
     attachments: tuple[AttachmentInfo, ...]
     warnings: tuple[str, ...]
     calibration_file: CalibrationFileInfo | None = None
+    verdicts: VerdictsInfo | None = None
+    """The streams' time-base verdicts (None: not asked for)."""
 
     @property
     def duration_s(self) -> float | None:
@@ -489,8 +520,8 @@ def _read_indexed(path: Path) -> _PartRead:
             if mm[: len(MCAP_MAGIC)] != MCAP_MAGIC or not _ends_with_footer(mm):
                 raise _NoIndexError("no footer")
             try:
-                summary = make_reader(f).get_summary()
-            except Exception as exc:  # mcap raises assorted error types for a damaged summary
+                summary = _read_summary(mm)
+            except (struct.error, ValueError, UnicodeDecodeError) as exc:
                 raise _NoIndexError(f"unreadable summary: {exc}") from exc
             if summary is None or summary.statistics is None:
                 raise _NoIndexError("no summary statistics")
@@ -502,8 +533,144 @@ def _read_indexed(path: Path) -> _PartRead:
             mm.close()
 
 
-def _from_summary(path: Path, size: int, mm: mmap.mmap, summary: Any) -> _PartRead:
+@dataclass(slots=True)
+class _Summary:
+    """The summary section of a part (what ``mcap.reader.McapReader.get_summary`` gives, read faster)."""
+
+    statistics: Statistics | None = None
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    chunk_indexes: list[ChunkIndex] = field(default_factory=list)
+    attachment_indexes: list[AttachmentIndex] = field(default_factory=list)
+    metadata_indexes: list[MetadataIndex] = field(default_factory=list)
+
+
+_OP_SCHEMA = 0x03
+_OP_CHANNEL = 0x04
+_OP_CHUNK_INDEX = 0x08
+_OP_ATTACHMENT_INDEX = 0x0A
+_OP_STATISTICS = 0x0B
+_OP_METADATA_INDEX = 0x0D
+_U16 = struct.Struct("<H")
+_U32 = struct.Struct("<I")
+_U64 = struct.Struct("<Q")
+_CHUNK_INDEX_HEAD = struct.Struct("<QQQQ")
+_STATISTICS_HEAD = struct.Struct("<QHIIIIQQ")
+_ATTACHMENT_INDEX_HEAD = struct.Struct("<QQQQQ")
+_CHUNK_INDEX_HEAD_TAIL = struct.Struct("<QQ")
+
+
+class _Body:
+    """A cursor over one record's body that refuses to read past it (a damaged length or count)."""
+
+    __slots__ = ("buf", "end", "pos")
+
+    def __init__(self, buf: mmap.mmap, start: int, end: int) -> None:
+        self.buf, self.pos, self.end = buf, start, end
+
+    def take(self, st: struct.Struct) -> tuple[Any, ...]:
+        if self.pos + st.size > self.end:
+            raise ValueError(f"record at {self.pos} ends early")
+        values = st.unpack_from(self.buf, self.pos)
+        self.pos += st.size
+        return values
+
+    def span(self) -> tuple[int, int]:
+        """A u32-length-prefixed field: its (start, end)."""
+        (n,) = self.take(_U32)
+        start = self.pos
+        if start + n > self.end:
+            raise ValueError(f"field at {start} of {n} bytes overruns its record")
+        self.pos += n
+        return start, start + n
+
+    def text(self) -> str:
+        a, b = self.span()
+        return bytes(self.buf[a:b]).decode()
+
+    def map_u16_u64(self) -> dict[int, int]:
+        a, b = self.span()
+        if (b - a) % 10:
+            raise ValueError(f"map at {a}: {b - a} bytes is not a whole number of entries")
+        return dict(struct.iter_unpack("<HQ", self.buf[a:b]))
+
+    def map_text(self) -> dict[str, str]:
+        a, b = self.span()
+        inner = _Body(self.buf, a, b)
+        out: dict[str, str] = {}
+        while inner.pos < b:
+            key = inner.text()
+            out[key] = inner.text()
+        return out
+
+
+def _read_summary(mm: mmap.mmap) -> _Summary | None:
+    """The summary section, parsed with :mod:`struct` (mcap's reader builds every record through a
+    Python stream and takes most of a second for the thousands of chunk indexes of a long session).
+
+    None when the footer says there is no summary. Raises ``ValueError``/``struct.error`` for a damaged
+    one, as mcap's reader raises its errors; like it, the summary CRC is not checked (``--verify`` does).
+    """
+    footer = len(mm) - len(MCAP_MAGIC) - _FOOTER_RECORD
+    (summary_start,) = _U64.unpack_from(mm, footer + 9)
+    if summary_start == 0:
+        return None
+    if not len(MCAP_MAGIC) <= summary_start <= footer:
+        raise ValueError(f"summary start {summary_start} outside the file")
+    out = _Summary()
+    pos = summary_start
+    while pos < footer:
+        op, ln = _REC.unpack_from(mm, pos)
+        body_end = pos + 9 + ln
+        if body_end > footer:
+            raise ValueError(f"summary record at {pos} ({ln} bytes) runs into the footer")
+        b = _Body(mm, pos + 9, body_end)
+        if op == _OP_CHUNK_INDEX:
+            t0, t1, chunk_start, chunk_len = b.take(_CHUNK_INDEX_HEAD)
+            offsets = b.map_u16_u64()
+            (mi_len,) = b.take(_U64)
+            compression = b.text()
+            csize, usize = b.take(_CHUNK_INDEX_HEAD_TAIL)
+            out.chunk_indexes.append(ChunkIndex(message_start_time=t0, message_end_time=t1,
+                                                chunk_start_offset=chunk_start, chunk_length=chunk_len,
+                                                message_index_offsets=offsets, message_index_length=mi_len,
+                                                compression=compression, compressed_size=csize,
+                                                uncompressed_size=usize))
+        elif op == _OP_CHANNEL:
+            (cid,) = b.take(_U16)
+            (sid,) = b.take(_U16)
+            topic = b.text()
+            enc = b.text()
+            out.channels[cid] = Channel(id=cid, schema_id=sid, topic=topic, message_encoding=enc,
+                                        metadata=b.map_text())
+        elif op == _OP_SCHEMA:
+            (sid,) = b.take(_U16)
+            name = b.text()
+            enc = b.text()
+            a, e = b.span()
+            out.schemas[sid] = Schema(id=sid, name=name, encoding=enc, data=bytes(mm[a:e]))
+        elif op == _OP_STATISTICS:
+            n, n_schemas, n_channels, n_att, n_meta, n_chunks, t0, t1 = b.take(_STATISTICS_HEAD)
+            out.statistics = Statistics(message_count=n, schema_count=n_schemas, channel_count=n_channels,
+                                        attachment_count=n_att, metadata_count=n_meta, chunk_count=n_chunks,
+                                        message_start_time=t0, message_end_time=t1,
+                                        channel_message_counts=b.map_u16_u64())
+        elif op == _OP_METADATA_INDEX:
+            off, length = b.take(_CHUNK_INDEX_HEAD_TAIL)
+            out.metadata_indexes.append(MetadataIndex(offset=off, length=length, name=b.text()))
+        elif op == _OP_ATTACHMENT_INDEX:
+            off, length, log_time, create_time, data_size = b.take(_ATTACHMENT_INDEX_HEAD)
+            name = b.text()
+            out.attachment_indexes.append(AttachmentIndex(offset=off, length=length, log_time=log_time,
+                                                          create_time=create_time, data_size=data_size, name=name,
+                                                          media_type=b.text()))
+        pos = body_end  # other records (summary offsets) are not needed
+    return out
+
+
+def _from_summary(path: Path, size: int, mm: mmap.mmap, summary: _Summary) -> _PartRead:
     stats = summary.statistics
+    assert stats is not None  # checked by the caller
     part = _PartRead(path=path, size=size, via=ReadVia.SUMMARY, finalized=True)
     channels = summary.channels
     for ch in channels.values():
@@ -626,13 +793,17 @@ def read_session_info(
     min_gap_s: float = 0.5,
     max_gaps_listed: int = 100,
     verify: bool = False,
+    verdicts: VerdictSource | None = VerdictSource.DATA,
 ) -> SessionInfo:
     """Summarize the session at ``path`` (its base, any part file, or a directory holding one session).
 
     Every part is read; a truncated part is read up to its last complete record, a damaged one
     around its damaged chunks, and either is noted in :attr:`SessionInfo.warnings` (never raised).
     ``verify``: scan every part, checking every chunk's CRC and the summary's (slower; the
-    finalized parts are otherwise read from their summary without decompressing a chunk). Raises
+    finalized parts are otherwise read from their summary, decompressing only the chunks that hold
+    ``/rig/events`` and ``/rig/timebase`` messages). ``verdicts``: where the time-base verdicts come
+    from (:class:`VerdictSource`; ``DATA`` reads and decodes every stream again, ``RECORDED`` takes the
+    recorder's own from the events; None: none). Raises
     :class:`~vsccore.errors.SessionFileError` when no part is found, a part in the sequence is
     missing, or a file is not MCAP at all.
     """
@@ -710,6 +881,11 @@ def read_session_info(
     cal_file = _calibration_file(files[0])
     if cal_file is not None and cal_file.problem is not None:
         warnings.append(cal_file.problem)
+    verdict_info = None
+    if verdicts is VerdictSource.DATA:
+        verdict_info = _data_verdicts(base)
+    elif verdicts is VerdictSource.RECORDED:
+        verdict_info = _recorded_verdicts(events)
     return SessionInfo(
         path=base,
         name=recorder.get("session") or base.name,
@@ -728,11 +904,69 @@ def read_session_info(
         attachments=tuple(attachments),
         warnings=tuple(warnings),
         calibration_file=cal_file,
+        verdicts=verdict_info,
     )
+
+
+def _data_verdicts(base: Path) -> VerdictsInfo:
+    """The verdicts computed from the session's streams (never raises for a bad session)."""
+    from rig.dataset import load_session
+    from rig.quality import session_verdicts, verdict_lines
+    from vsccore.errors import RigError
+
+    try:
+        found = session_verdicts(load_session(base))
+    except (RigError, OSError) as exc:
+        problem = f"not judged: {exc}"
+        return VerdictsInfo(VerdictSource.DATA, (problem,), {}, problem)
+    lines = verdict_lines(found) or ["(no GNSS, CAN or DAQ stream to judge)"]
+    return VerdictsInfo(VerdictSource.DATA, tuple(lines), {k: q.to_json() for k, q in sorted(found.items())})
+
+
+_NO_RECORDED_VERDICTS = ("none recorded (a recording that did not finish, or an older recorder); "
+                         "rig info --verify computes them from the data")
+
+
+def _recorded_verdicts(events: Sequence[tuple[int, T.Event]]) -> VerdictsInfo:
+    """The recorder's verdicts at the end of the recording, from its last ``timebase`` event that has them."""
+    from rig.quality import THRESHOLDS, Figure, Gap, StreamQuality, Verdict, verdict_lines
+
+    recorded: Mapping[str, Any] | None = None
+    for _t, ev in events:
+        v = ev.details.get("verdicts") if ev.kind is T.EventKind.TIMEBASE else None
+        if isinstance(v, Mapping):
+            recorded = v
+    if recorded is None:
+        return VerdictsInfo(VerdictSource.RECORDED, (_NO_RECORDED_VERDICTS,), {}, _NO_RECORDED_VERDICTS)
+    found: dict[str, StreamQuality] = {}
+    bad: list[str] = []
+    for name, q in recorded.items():
+        try:
+            figures = tuple(
+                Figure(fname, float("nan") if f.get("value") is None else float(f["value"]), Verdict(f["verdict"]),
+                       str(f.get("fix", "")))
+                for fname, f in q["figures"].items() if fname in THRESHOLDS
+            )
+            gaps = tuple(Gap(str(g["stream"]), str(g["topic"]), str(g["kind"]), int(g["start_ns"]), int(g["end_ns"]))
+                         for g in q.get("gaps", ()))
+            found[str(name)] = StreamQuality(str(name), figures, gaps, str(q.get("note", "")))
+        except (KeyError, TypeError, ValueError, AttributeError):
+            bad.append(str(name))
+    lines = verdict_lines(found) or ["(no GNSS, CAN or DAQ stream to judge)"]
+    problem = None
+    if bad:
+        problem = f"undecodable recorded verdicts of {', '.join(bad)}"
+        lines.append(problem)
+    return VerdictsInfo(VerdictSource.RECORDED, tuple(lines), {k: q.to_json() for k, q in sorted(found.items())},
+                        problem)
 
 
 def _calibration_file(part: Path) -> CalibrationFileInfo | None:
     """The calibration results file of the session that ``part`` belongs to (None when there is none)."""
+    # rig.sessiondata, which names and reads the file, imports pydantic, the configuration models and
+    # the dataset (a large share of `rig info`'s run time): only when such a file can exist at all
+    if next(part.parent.glob("*.calibration.json"), None) is None:
+        return None
     from rig.sessiondata import calibration_file_path, read_calibration_file
 
     path = calibration_file_path(part)
@@ -1128,7 +1362,7 @@ def info_to_json(info: SessionInfo) -> dict[str, Any]:
                 }
                 for c in info.clocks
             ],
-            "verdicts": _quality_json(info.path),
+            "verdicts": _verdicts_json(info.verdicts),
         },
         "calibration": dict(info.calibration),
         "calibration_file": None if info.calibration_file is None else {
@@ -1151,10 +1385,10 @@ def info_to_json(info: SessionInfo) -> dict[str, Any]:
     return doc
 
 
-def _quality_json(path: Path) -> dict[str, Any]:
-    from rig.quality import info_json
-
-    return info_json(path)
+def _verdicts_json(v: VerdictsInfo | None) -> dict[str, Any] | None:
+    if v is None:
+        return None
+    return {"problem": v.problem, "streams": _jsonable(dict(v.streams)), "source": v.source.value}
 
 
 def _jsonable(v: Any) -> Any:
@@ -1334,10 +1568,12 @@ def format_info(info: SessionInfo, *, max_list: int = 20) -> str:
         out.extend(_table(rows, (False, False, False, True, True, True, True, True, True, True, True)))
     else:
         out.append("  (no time-base records: the time base quality is unknown)")
-    from rig.quality import info_lines
-
-    out.append("time-base verdicts (good / degraded / unusable, see rig.quality)")
-    out.extend(f"  {line}" for line in info_lines(info.path))
+    if info.verdicts is not None:
+        recorded = info.verdicts.source is VerdictSource.RECORDED
+        out.append("time-base verdicts (good / degraded / unusable, see rig.quality"
+                   + ("; as the recorder judged at the end of the recording, rig info --verify recomputes them "
+                      "from the data)" if recorded else ")"))
+        out.extend(f"  {line}" for line in info.verdicts.lines)
 
     out.append("")
     out.append("calibration in force")

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from drivers.can.roles import ROLE_SI_UNITS
+from vsccore.roles import ROLE_SI_UNITS
 
 if TYPE_CHECKING:
     import can
@@ -971,10 +971,20 @@ def _gnss_record_fields() -> dict[str, tuple[LogField, ...]]:
     }
 
 
-GNSS_RECORD_FIELDS: Mapping[str, tuple[LogField, ...]] = _gnss_record_fields()
-"""The fields of the decoded GNSS records by kind (``position`` for BESTPOS and MARKPOS, ``velocity``,
-``heading`` for HEADING and HEADING2, ``marktime``, ``time``): one table for the recorder, which
-builds them from each decoded log, and for :mod:`rig.dataset`, which builds them from raw bytes."""
+if TYPE_CHECKING:
+    GNSS_RECORD_FIELDS: Mapping[str, tuple[LogField, ...]]
+    """The fields of the decoded GNSS records by kind (``position`` for BESTPOS and MARKPOS, ``velocity``,
+    ``heading`` for HEADING and HEADING2, ``marktime``, ``time``): one table for the recorder, which
+    builds them from each decoded log, and for :mod:`rig.dataset`, which builds them from raw bytes.
+    Built on first use (:func:`__getattr__`): the NovAtel enums it names import the whole codec,
+    which ``rig info`` and ``rig --help`` do not need."""
+
+
+def __getattr__(name: str) -> Any:
+    if name == "GNSS_RECORD_FIELDS":
+        table = globals()["GNSS_RECORD_FIELDS"] = _gnss_record_fields()
+        return table
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def gnss_raw(receiver: str) -> str:

@@ -81,6 +81,7 @@ from drivers.can.checks import (
     get_checksum,
 )
 from vsccore.errors import ConfigError
+from vsccore.roles import ROLE_SI_UNITS
 
 __all__ = [
     "KNOWN_ROLES",
@@ -212,28 +213,7 @@ def unit_conversion(name: str, *, where: str = "unit") -> UnitConversion:
 # --------------------------------------------------------------------------------------------
 # Roles
 
-ROLE_SI_UNITS: Mapping[str, str] = types.MappingProxyType(
-    {
-        "yaw_rate": "rad/s",
-        "lat_accel": "m/s^2",
-        "long_accel": "m/s^2",
-        "swa": "rad",
-        "swa_rate": "rad/s",
-        "wheel_speed_fl": "m/s",
-        "wheel_speed_fr": "m/s",
-        "wheel_speed_rl": "m/s",
-        "wheel_speed_rr": "m/s",
-        "vehicle_speed": "m/s",
-        "mc_pressure": "Pa",
-        "wheel_pressure_fl": "Pa",
-        "wheel_pressure_fr": "Pa",
-        "wheel_pressure_rl": "Pa",
-        "wheel_pressure_rr": "Pa",
-        "vsc_beta_estimate": "rad",
-        "vsc_active": "1",
-    }
-)
-"""Roles the rig knows, with the SI unit their values must have. Other role names are allowed."""
+# the table lives in vsccore so that rig.topics can name the roles without importing cantools
 
 KNOWN_ROLES = frozenset(ROLE_SI_UNITS)
 

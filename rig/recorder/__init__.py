@@ -15,17 +15,39 @@ Reading back: :func:`find_parts`, :func:`scan_part` (tolerates a truncated part)
 :func:`recover` writes a finalized copy of a crashed part.
 """
 
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
 from rig.recorder.reader import PartScan, ProblemKind, find_parts, part_path, scan_part, session_base
+
+# eager: the function shares its name with its module, which would otherwise shadow it once imported
 from rig.recorder.recover import RecoverReport, finalize_in_place, recover
-from rig.recorder.sources import Source, SourceStats
-from rig.recorder.writer import (
-    Attachment,
-    Compression,
-    Recorder,
-    RecorderOptions,
-    RecordingSummary,
-    session_metadata,
-)
+
+if TYPE_CHECKING:
+    from rig.recorder.sources import Source, SourceStats
+    from rig.recorder.writer import (
+        Attachment,
+        Compression,
+        Recorder,
+        RecorderOptions,
+        RecordingSummary,
+        session_metadata,
+    )
+
+_LAZY = {
+    **dict.fromkeys(("Source", "SourceStats"), "rig.recorder.sources"),
+    **dict.fromkeys(("Attachment", "Compression", "Recorder", "RecorderOptions", "RecordingSummary",
+                     "session_metadata"), "rig.recorder.writer"),
+}
+"""The writing side, imported on first use: reading a session (``rig info``) needs only the reader."""
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = globals()[name] = getattr(import_module(module), name)
+    return value
 
 __all__ = [
     "Attachment",
