@@ -21,7 +21,7 @@ HEAVY = ("scipy", "matplotlib", "statsmodels", "mcap", "cantools", "can", "numpy
 
 COMMANDS = ("sim", "gnss", "config", "can", "demo", "relay", "recover", "record", "info", "export",
             "calibrate-baseline", "calibrate-steering-ratio", "calibrate-imu", "steering-ratio", "steering",
-            "validate", "rollover")
+            "validate", "rollover", "layout")
 """Every command and command group of ``rig`` (README "Command tour")."""
 
 

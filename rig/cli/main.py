@@ -70,9 +70,11 @@ def _register() -> None:
         demo_cmd,
         gnss_cmd,
         info_cmd,
+        layout_cmd,
         record_cmd,
         recover_cmd,
         relay_cmd,
+        replay_cmd,
         sim_cmd,
     )
 
@@ -83,7 +85,9 @@ def _register() -> None:
     app.command("demo")(demo_cmd.demo)
     app.command("relay")(relay_cmd.relay)
     app.command("recover")(recover_cmd.recover)
+    app.command("layout")(layout_cmd.layout)
     app.command("record")(record_cmd.record)
+    app.command("replay")(replay_cmd.replay)
     sim_cmd.app.command("record")(record_cmd.sim_record)
     info_cmd.register(app)  # rig info, rig export
     calibrate_cmd.register(app)  # rig calibrate-*, steering-ratio

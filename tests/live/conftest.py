@@ -21,6 +21,8 @@ class LiveRun:
     session: RecordSession | None = None
     started: threading.Event = field(default_factory=threading.Event)
     stop: threading.Event = field(default_factory=threading.Event)
+    finished: threading.Event = field(default_factory=threading.Event)
+    """Set when the recording ended (the drive completed, or stop) and the file is finalized."""
     result: list[SimRecording] = field(default_factory=list)
     error: list[BaseException] = field(default_factory=list)
 
@@ -44,6 +46,7 @@ def run_live(tmp: Path, options: LiveOptions, drive: str = "step_steer:lead_s=1,
             run.error.append(exc)
         finally:
             run.started.set()
+            run.finished.set()
 
     th = threading.Thread(target=body, name="test-live-recording")
     th.start()
