@@ -1,0 +1,77 @@
+"""Export a one-hour session to Parquet (issue 17's target: ≤ 30 s, peak RSS ≤ 1 GB), and optionally MDF4/MAT.
+
+The session is the one :mod:`benchmarks.bench_validate` synthesises with the real Recorder (three GNSS
+receivers at 20 Hz with raw bytes, a 500 kbit/s CAN bus at 2000 frames/s with the simulated ECU's frames,
+eight DAQ channels at 1 kHz, the optical topic at 100 Hz), built once and cached (default
+``$TMPDIR/vsc_rig_bench_export/<minutes>min``).
+
+Each export runs in a child process (``python -c``) so that its peak RSS is its own:
+``resource.getrusage(RUSAGE_CHILDREN).ru_maxrss`` after the child ends, and wall time around it.
+
+Run: ``.venv/bin/python benchmarks/bench_export.py [--minutes 60] [--formats parquet,mdf4] [--rebuild]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+TARGET_S = 30.0
+TARGET_RSS_MB = 1024.0
+
+_CHILD = """
+import sys
+from rig.export import export_mat, export_mdf4, export_parquet
+fn = {"parquet": export_parquet, "mdf4": export_mdf4, "mat": export_mat}[sys.argv[1]]
+kw = {"validation": False} if sys.argv[1] == "mat" else {}
+report = fn(sys.argv[2], sys.argv[3], **kw)
+print(sum(f.records for f in report.files), sum(f.bytes for f in report.files), len(report.files))
+"""
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--minutes", type=float, default=60.0)
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "vsc_rig_bench_export")
+    ap.add_argument("--formats", default="parquet", help="Comma-separated: parquet, mdf4, mat.")
+    ap.add_argument("--rebuild", action="store_true")
+    args = ap.parse_args()
+    cache: Path = args.cache / f"{args.minutes:g}min"
+    if args.rebuild and cache.exists():
+        shutil.rmtree(cache)
+    if not list(cache.glob("hour.*.mcap")):
+        sys.path.insert(0, str(REPO))
+        from benchmarks.bench_validate import build
+
+        print(f"building the synthetic session in {cache} (once) ...")
+        build(cache, args.minutes)
+    base = cache / "hour"
+    size = sum(p.stat().st_size for p in cache.glob("hour.*.mcap"))
+    print(f"session {base} ({size / 1e6:.0f} MB, {args.minutes:g} min)")
+    for fmt in args.formats.split(","):
+        out = Path(tempfile.mkdtemp(prefix=f"bench_export_{fmt}_"))
+        try:
+            t0 = time.perf_counter()
+            res = subprocess.run([sys.executable, "-c", _CHILD, fmt, str(base), str(out)], cwd=REPO,
+                                 capture_output=True, text=True, check=False)
+            wall = time.perf_counter() - t0
+            if res.returncode != 0:
+                raise SystemExit(f"{fmt} export failed:\n{res.stderr}")
+            rows, nbytes, nfiles = (int(x) for x in res.stdout.split())
+            rss_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0  # Linux: kB
+            verdict = "OK" if wall <= TARGET_S and rss_mb <= TARGET_RSS_MB else "OVER TARGET"
+            print(f"{fmt:<8} {wall:7.1f} s wall  peak RSS {rss_mb:7.0f} MB  {rows} rows  {nbytes / 1e6:.0f} MB "
+                  f"in {nfiles} files  (target ≤ {TARGET_S:g} s, ≤ {TARGET_RSS_MB:g} MB: {verdict})")
+        finally:
+            shutil.rmtree(out, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
