@@ -72,6 +72,7 @@ def test_chromium_loads_the_status_page_during_a_recording(page_run: LiveRun, tm
     for path in ("", "status.json"):
         with pytest.raises(urllib.error.HTTPError) as err:
             urllib.request.urlopen(base + path, timeout=5.0)
+        err.value.close()
         assert err.value.code == 401
     js = base + "status.json?token=" + TOKEN
     first = _wait_for("a β reference, LTR and fixed rovers",
