@@ -76,6 +76,7 @@ __all__ = [
     "encode_json",
     "encode_record",
     "flatten_metadata",
+    "foxglove_time",
     "gnss_bestpos",
     "gnss_bestvel",
     "gnss_fix",
@@ -391,6 +392,21 @@ def _obj(
 # "properties" on every object, while standard validators reject null for "type": "number". So a field
 # that can be unknown is optional (never in "required") and left out of the message when unknown
 # (encode_record); its description says so.
+
+
+def foxglove_time(ns: int) -> dict[str, int]:
+    """``foxglove.Time`` ``{sec, nsec}`` of integer ns since the Unix epoch. JavaScript readers (Foxglove)
+    read a JSON integer as a double: ns since 1970 (~2^60.6) come out on a 256 ns grid, up to 128 ns off;
+    seconds and nanoseconds apart are exact."""
+    sec, nsec = divmod(int(ns), 1_000_000_000)
+    return {"sec": sec, "nsec": nsec}
+
+
+def _time(desc: str) -> dict[str, Any]:
+    return {"type": "object", "title": "time", "description": desc,
+            "properties": {"sec": {"type": "integer", "minimum": 0},
+                           "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}},
+            "required": ["sec", "nsec"]}
 
 
 def _num(desc: str, nullable: bool = False) -> dict[str, Any]:
@@ -753,6 +769,8 @@ SCHEMA_EVENT = SchemaSpec(
             "text": _str("One line for people"),
             "start_ns": _int("Start of the affected interval on the common time base (ns), if any", True),
             "end_ns": _int("End of the affected interval on the common time base (ns), if any", True),
+            "start": _time("start_ns as foxglove.Time (exact in JavaScript readers), if any"),
+            "end": _time("end_ns as foxglove.Time (exact in JavaScript readers), if any"),
             "details": _map("Machine-readable details (counts, topics, values)", True),
         },
         ("kind", "severity", "source", "text"),
@@ -1081,6 +1099,8 @@ class Event:
             "text": self.text,
             "start_ns": self.start_ns,
             "end_ns": self.end_ns,
+            "start": None if self.start_ns is None else foxglove_time(self.start_ns),
+            "end": None if self.end_ns is None else foxglove_time(self.end_ns),
             "details": dict(self.details),
         }
 

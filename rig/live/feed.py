@@ -37,6 +37,7 @@ import pymap3d
 
 import rig.topics as T  # noqa: N812 - topics used as a namespace
 from rig.status import DeviceState, SessionStatus
+from rig.topics import foxglove_time
 from vsccore.angles import sideslip_from_azimuths
 from vsccore.errors import ConfigError
 
@@ -71,12 +72,6 @@ COURSE_SPEED_STD_MPS = 0.03
 share of the live β band (BESTVEL carries no standard deviation)."""
 MIN_SPEED_MPS = 2.0
 """Below this the course over ground is noise: no live β reference (as on the dashboard)."""
-
-
-def foxglove_time(ns: int) -> dict[str, int]:
-    """``foxglove.Time`` of integer nanoseconds since the Unix epoch: exact in a JavaScript reader."""
-    sec, nsec = divmod(int(ns), 1_000_000_000)
-    return {"sec": sec, "nsec": nsec}
 
 
 _TIME_SCHEMA: dict[str, Any] = {

@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import json
 import struct
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -31,7 +32,8 @@ class Received:
     subprotocol: str = ""
 
 
-async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_s: float) -> Received:
+async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_s: float,
+                   stop: threading.Event | None) -> Received:
     out = Received()
     subs: dict[int, str] = {}
     deadline = time.monotonic() + timeout_s
@@ -42,12 +44,12 @@ async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_
             if all(len(out.messages.get(t, ())) >= counts.get(t, 1) for t in topics):
                 return out
             left = deadline - time.monotonic()
-            if left <= 0:
+            if left <= 0 or (stop is not None and stop.is_set()):
                 return out
             try:
-                frame = await asyncio.wait_for(ws.recv(), left)
+                frame = await asyncio.wait_for(ws.recv(), min(left, 0.2) if stop is not None else left)
             except TimeoutError:
-                return out
+                continue
             if isinstance(frame, str):
                 msg = json.loads(frame)
                 if msg["op"] == "serverInfo":
@@ -68,7 +70,8 @@ async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_
                     out.messages.setdefault(subs[sid], []).append((log_ns, bytes(frame[_MSG_HEADER.size:])))
 
 
-def collect(url: str, topics: list[str], counts: dict[str, int] | None = None, timeout_s: float = 30.0) -> Received:
+def collect(url: str, topics: list[str], counts: dict[str, int] | None = None, timeout_s: float = 30.0,
+            stop: threading.Event | None = None) -> Received:
     """Connect, subscribe to ``topics`` as they are advertised, and read until each has ``counts[topic]``
-    messages (default 1) or ``timeout_s`` passed."""
-    return asyncio.run(_collect(url, topics, counts or {}, timeout_s))
+    messages (default 1), ``timeout_s`` passed or ``stop`` is set."""
+    return asyncio.run(_collect(url, topics, counts or {}, timeout_s, stop))
