@@ -1,9 +1,11 @@
 """`rig` starts fast: the command modules import their heavy libraries only when a command runs.
 
-``rig --help`` and ``rig config check`` must not pay for scipy, matplotlib, statsmodels, mcap,
-cantools, the drivers or the simulator. Checked in fresh interpreters (this test process has most
-of them loaded already), plus the few constants the command modules keep in step with the library
-modules they no longer import at start-up.
+``rig --help`` answers from the command table of :mod:`rig.cli.main` without importing typer or a
+command module; a command imports only its own module; ``rig config check`` and ``rig info`` must
+not pay for scipy, matplotlib, statsmodels, cantools, python-can, pandas, the drivers or the
+simulator. Checked in fresh interpreters (this test process has most of them loaded already), plus
+the few constants the command modules keep in step with the library modules they no longer import
+at start-up, and the table's help lines against the commands' own.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ HEAVY = ("scipy", "matplotlib", "statsmodels", "mcap", "cantools", "can", "numpy
 
 COMMANDS = ("sim", "gnss", "config", "can", "demo", "relay", "recover", "record", "info", "export",
             "calibrate-baseline", "calibrate-steering-ratio", "calibrate-imu", "steering-ratio", "steering",
-            "validate", "rollover", "layout")
+            "validate", "rollover", "layout", "replay")
 """Every command and command group of ``rig`` (README "Command tour")."""
 
 
@@ -30,14 +32,63 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=120, env=env, check=False)
 
 
-def test_importing_the_cli_loads_no_heavy_library() -> None:
-    code = ("import json, sys, rig.cli.main; "
-            "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules})))")
+def _loaded_after(statement: str) -> tuple[set[str], set[str]]:
+    """(top-level packages, rig.cli modules) loaded in a fresh interpreter after ``statement``."""
+    code = ("import json, sys\n"
+            f"{statement}\n"
+            "print(json.dumps(sorted(sys.modules)))")
     r = _run("-c", code)
     assert r.returncode == 0, r.stderr
-    loaded = set(json.loads(r.stdout))
-    assert "typer" in loaded  # the check sees what was imported
+    modules = set(json.loads(r.stdout.splitlines()[-1]))
+    return {m.split(".")[0] for m in modules}, {m for m in modules if m.startswith("rig.cli.")}
+
+
+def test_importing_the_cli_loads_no_heavy_library() -> None:
+    loaded, cli = _loaded_after("import rig.cli.main")
+    assert "typer" not in loaded and cli == {"rig.cli.main"}  # the command tree is built on demand
+    loaded, cli = _loaded_after("from rig.cli.main import app")  # the whole tree
+    assert "typer" in loaded and "rig.cli.info_cmd" in cli  # the check sees what was imported
     assert not loaded & set(HEAVY), sorted(loaded & set(HEAVY))
+
+
+def test_help_and_version_import_no_typer_and_no_command_module() -> None:
+    for flag, needle in (("--help", "Usage: rig [OPTIONS] COMMAND [ARGS]..."), ("--version", "vsc-rig ")):
+        loaded, cli = _loaded_after("from rig.cli.main import main\n"
+                                    "try:\n"
+                                    f"    main([{flag!r}])\n"
+                                    "except SystemExit as e:\n"
+                                    "    assert not e.code, e.code\n"
+                                    f"print({needle!r})")
+        assert "typer" not in loaded and "numpy" not in loaded, flag
+        assert cli == {"rig.cli.main"}, flag
+
+
+def test_a_command_imports_only_its_own_module() -> None:
+    _loaded, cli = _loaded_after("from rig.cli.main import main\n"
+                                 "try:\n"
+                                 "    main(['info', '--help'])\n"
+                                 "except SystemExit as e:\n"
+                                 "    assert not e.code, e.code")
+    assert cli == {"rig.cli.main", "rig.cli.info_cmd"}, sorted(cli)
+
+
+def test_the_help_table_matches_the_commands_own_help() -> None:
+    """rig --help lists COMMANDS; each entry's help is the command's own (a new command goes in the table)."""
+    from typer.main import get_command
+
+    from rig.cli.main import COMMANDS as TABLE
+    from rig.cli.main import DEBUG_HELP, TRACE_FRAMES_HELP, VERSION_HELP, app
+
+    group = get_command(app)
+    assert sorted(c.name for c in TABLE) == sorted(group.commands), (  # type: ignore[attr-defined]
+        "add the command to rig.cli.main.COMMANDS (rig --help lists it from there)")
+    for entry in TABLE:
+        cmd = group.commands[entry.name]  # type: ignore[attr-defined]
+        own = (cmd.short_help or cmd.help or "").split("\n\n")[0]
+        assert " ".join(own.split()) == " ".join(entry.help.split()), entry.name
+    helps = {p.opts[0]: getattr(p, "help", None) for p in group.params}
+    assert (helps["--version"], helps["--debug"], helps["--trace-frames"]) == (VERSION_HELP, DEBUG_HELP,
+                                                                                TRACE_FRAMES_HELP)
 
 
 def test_help_lists_every_command_group_and_each_group_has_help() -> None:

@@ -2,99 +2,226 @@
 
 Each command parses its options, calls one library function and lets :class:`RigError` escape;
 :func:`main` turns it into one line on stderr and exit status 2 (``--debug`` shows the traceback).
+
+Start-up: the command modules are registered by name (:data:`COMMANDS`) and imported only when their
+command runs or shows its help; ``rig --help`` and ``rig --version`` are answered from that table
+without importing typer at all (typer, rich and the command tree cost most of a second on a loaded
+laptop). ``app`` (the complete typer app, for tests and tools) is built on first access.
 """
 
 from __future__ import annotations
 
 import logging
+import shutil
 import sys
-from typing import Annotated
-
-import typer
+import textwrap
+from dataclasses import dataclass
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
 
 from vsccore import __version__
 from vsccore.errors import RigError
 
-app = typer.Typer(
-    name="rig",
-    help="vsc-rig: record, calibrate and validate vehicle-stability-control road tests.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
+if TYPE_CHECKING:
+    import typer
 
-_state = {"debug": False}
+APP_HELP = "vsc-rig: record, calibrate and validate vehicle-stability-control road tests."
+VERSION_HELP = "Show the version."
+DEBUG_HELP = "Show tracebacks and debug logs."
+TRACE_FRAMES_HELP = "Log every CAN frame sent and received (debug level; implies --debug)."
+HELP_HELP = "Show this message and exit."
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """A command (or command group) of ``rig``, registered without importing its module."""
+
+    name: str
+    module: str
+    """The ``rig.cli`` module that implements it."""
+    attr: str | None
+    """Its function (a command) or typer app (a group) in ``module``; None: ``module.register(app)`` adds it."""
+    help: str
+    """The one-line help ``rig --help`` shows (tests/test_cli_startup.py keeps it equal to the command's own)."""
+
+
+COMMANDS: tuple[Command, ...] = (
+    Command("demo", "rig.cli.demo_cmd", "demo",
+            "Simulate a test day with simulated devices, then show what each stage produced."),
+    Command("relay", "rig.cli.relay_cmd", "relay",
+            "Relay RTK corrections (RTCM3, RTCA, CMR) from a source to rover ports until Ctrl-C, the end of a "
+            "file source, or --duration. SOURCE/SINK: /dev/ttyUSB0[@BAUD], "
+            "ntrip://user:password@host:port/MOUNT (source only), tcp://host:port, file:PATH[@BAUD]."),
+    Command("recover", "rig.cli.recover_cmd", "recover",
+            "Write a finalized, indexed copy of FILE with every intact chunk: before and after any damage, up to "
+            "its last complete record. Also removes the disk-space reserve a killed recorder left beside it."),
+    Command("layout", "rig.cli.layout_cmd", "layout",
+            "Write the Foxglove layout (import it in Foxglove: Layouts → Import from file)."),
+    Command("record", "rig.cli.record_cmd", "record",
+            "Record every device of CONFIG (receivers, correction relay, CAN, DAQ) into one MCAP session file "
+            "until Ctrl-C, SIGTERM or --duration."),
+    Command("replay", "rig.cli.replay_cmd", "replay",
+            "Play the recorded CAN frames of SESSION onto a live bus at their recorded times (HIL: drive a bench "
+            "ECU with a road test). Frames go out byte-exact, counters and checksums as recorded; faults rewrite "
+            "one signal each and reseal the checksum. Prints the plan, then the send-lateness figures at the end."),
+    Command("info", "rig.cli.info_cmd", None,
+            "Duration, topics with counts and rates, devices, gaps, time-base quality, calibration and events."),
+    Command("export", "rig.cli.info_cmd", None,
+            "Get data out of a session: CANape/asammdf, pandas/Polars/DuckDB, MATLAB, RTKLIB, NovAtel tools, "
+            "spreadsheets."),
+    Command("calibrate-baseline", "rig.cli.calibrate_cmd", None,
+            "Antenna mounting offset from straight runs (heading of the baseline A→B minus the course over "
+            "ground)."),
+    Command("calibrate-steering-ratio", "rig.cli.calibrate_cmd", None,
+            "Steering ratio SWA/δ per steering-wheel angle, forward and reverse, from circles at constant SWA."),
+    Command("calibrate-imu", "rig.cli.calibrate_cmd", None,
+            "Accelerometer and gyroscope calibration: bias, scale factors and misalignment (measured = M·true + b)."),
+    Command("validate", "rig.cli.analysis_cmd", None,
+            "Score the VSC sideslip estimate of SESSION against the GNSS (and optical) reference."),
+    Command("rollover", "rig.cli.analysis_cmd", None,
+            "Load-transfer ratio from the CAN lateral acceleration and the roll model, predicted 1, 2 and 3 s "
+            "ahead."),
+    Command("sim", "rig.cli.sim_cmd", "app", "Vehicle-dynamics simulator: scenarios and their ground truth."),
+    Command("gnss", "rig.cli.gnss_cmd", "app", "GNSS receivers (NovAtel): decode raw captures, watch a live receiver."),
+    Command("config", "rig.cli.config_cmd", "app", "Validate session configurations and vehicle profiles."),
+    Command("can", "rig.cli.can_cmd", "app",
+            "CAN tools: decode logs with a DBC and a role mapping, watch a live bus, run the simulated VSC ECU."),
+    Command("steering-ratio", "rig.cli.calibrate_cmd", None, "Steering ratio from tape measurements."),
+    Command("steering", "rig.cli.analysis_cmd", None,
+            "Steering-angle reconstruction from GNSS speed and lateral acceleration."),
+)
+"""Every command of ``rig``, in the order ``rig --help`` lists them (README "Command tour")."""
+
+_BY_NAME = {c.name: c for c in COMMANDS}
 
 FRAME_LOGGER = "can"
 """python-can's logger tree: its interfaces log every frame sent and received at DEBUG level
 (socketcand: "Received Ascii Message", socketcan: "sending: …"), so it stays at INFO unless
 ``--trace-frames`` asks for the frames."""
 
+_state = {"debug": False}
+_app: typer.Typer | None = None
+_registered: set[str] = set()
+"""Command modules (and groups) already attached to ``_app``: each is attached once per process."""
+
 
 def _version_callback(value: bool) -> None:
     if value:
+        import typer
+
         typer.echo(f"vsc-rig {__version__}")
         raise typer.Exit()
 
 
-@app.callback()
-def _root(
-    version: Annotated[
-        bool,
-        typer.Option("--version", callback=_version_callback, is_eager=True, help="Show the version."),
-    ] = False,
-    debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks and debug logs.")] = False,
-    trace_frames: Annotated[
-        bool,
-        typer.Option("--trace-frames", help="Log every CAN frame sent and received (debug level; implies --debug)."),
-    ] = False,
-) -> None:
-    """vsc-rig: record, calibrate and validate vehicle-stability-control road tests."""
-    debug = debug or trace_frames
-    _state["debug"] = debug
-    logging.basicConfig(
-        level=logging.DEBUG if debug else logging.WARNING,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
-    # thousands of lines a second on a live bus: only on request
-    logging.getLogger(FRAME_LOGGER).setLevel(logging.NOTSET if trace_frames else logging.INFO)
+def _new_app() -> typer.Typer:
+    import typer
 
-
-def _register() -> None:
-    """Attach the command groups (each lives in its own module)."""
-    from rig.cli import (
-        analysis_cmd,
-        calibrate_cmd,
-        can_cmd,
-        config_cmd,
-        demo_cmd,
-        gnss_cmd,
-        info_cmd,
-        layout_cmd,
-        record_cmd,
-        recover_cmd,
-        relay_cmd,
-        replay_cmd,
-        sim_cmd,
+    app = typer.Typer(
+        name="rig",
+        help=APP_HELP,
+        no_args_is_help=True,
+        add_completion=False,
+        pretty_exceptions_enable=False,
     )
 
-    app.add_typer(sim_cmd.app, name="sim")
-    app.add_typer(gnss_cmd.app, name="gnss")
-    app.add_typer(config_cmd.app, name="config")
-    app.add_typer(can_cmd.app, name="can")
-    app.command("demo")(demo_cmd.demo)
-    app.command("relay")(relay_cmd.relay)
-    app.command("recover")(recover_cmd.recover)
-    app.command("layout")(layout_cmd.layout)
-    app.command("record")(record_cmd.record)
-    app.command("replay")(replay_cmd.replay)
-    sim_cmd.app.command("record")(record_cmd.sim_record)
-    info_cmd.register(app)  # rig info, rig export
-    calibrate_cmd.register(app)  # rig calibrate-*, steering-ratio
-    analysis_cmd.register(app)  # rig validate, rig rollover, rig steering
+    # options as defaults, not Annotated: typer resolves the (postponed) annotations in this module's
+    # globals, where typer is not imported (``rig --help`` must not import it)
+    @app.callback()
+    def _root(
+        version: bool = typer.Option(False, "--version", callback=_version_callback, is_eager=True,
+                                     help=VERSION_HELP),
+        debug: bool = typer.Option(False, "--debug", help=DEBUG_HELP),
+        trace_frames: bool = typer.Option(False, "--trace-frames", help=TRACE_FRAMES_HELP),
+    ) -> None:
+        """vsc-rig: record, calibrate and validate vehicle-stability-control road tests."""
+        debug = debug or trace_frames
+        _state["debug"] = debug
+        logging.basicConfig(
+            level=logging.DEBUG if debug else logging.WARNING,
+            format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        )
+        # thousands of lines a second on a live bus: only on request
+        logging.getLogger(FRAME_LOGGER).setLevel(logging.NOTSET if trace_frames else logging.INFO)
+
+    return app
 
 
-_register()
+def _attach(app: typer.Typer, cmd: Command) -> None:
+    """Import ``cmd``'s module and attach what it implements (once per process)."""
+    key = cmd.module if cmd.attr is None else f"{cmd.module}:{cmd.attr}:{cmd.name}"
+    if key in _registered:
+        return
+    _registered.add(key)
+    module = import_module(cmd.module)
+    if cmd.attr is None:
+        module.register(app)  # the module attaches its commands (rig info + rig export, rig calibrate-*, …)
+        return
+    obj = getattr(module, cmd.attr)
+    if callable(obj) and not hasattr(obj, "registered_commands"):
+        app.command(cmd.name)(obj)
+        return
+    if cmd.name == "sim":  # `rig sim record` lives with `rig record`
+        from rig.cli import record_cmd
+
+        obj.command("record")(record_cmd.sim_record)
+    app.add_typer(obj, name=cmd.name)
+
+
+def build_app(names: Any = None) -> typer.Typer:
+    """The ``rig`` typer app with the commands ``names`` attached (None: every command).
+
+    One app per process; commands attached earlier stay attached.
+    """
+    global _app
+    if _app is None:
+        _app = _new_app()
+    for cmd in COMMANDS:
+        if names is None or cmd.name in names:
+            _attach(_app, cmd)
+    return _app
+
+
+def __getattr__(name: str) -> Any:
+    if name == "app":  # the complete app (tests, tools): every command module imported
+        return build_app()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _command_of(args: list[str]) -> str | None:
+    """The command that ``args`` run (the first word that is not a root option), or None."""
+    for a in args:
+        if not a.startswith("-"):
+            return a
+    return None
+
+
+def _fast_help() -> str:
+    """``rig --help`` without typer: the same panels as typer's rich help, plain text."""
+    width = max(60, shutil.get_terminal_size((80, 24)).columns)
+    try:
+        "╭─│╰╮╯".encode(sys.stdout.encoding or "ascii")
+        tl, tr, bl, br, h, v = "╭", "╮", "╰", "╯", "─", "│"
+    except (UnicodeEncodeError, LookupError):
+        tl, tr, bl, br, h, v = "+", "+", "+", "+", "-", "|"
+
+    def panel(title: str, rows: list[tuple[str, str]]) -> list[str]:
+        left = max(len(k) for k, _ in rows) + 2
+        inner = width - 4
+        out = [f"{tl}{h} {title} " + h * (width - len(title) - 5) + tr]
+        for key, text in rows:
+            lines = textwrap.wrap(text, max(20, inner - left)) or [""]
+            for i, line in enumerate(lines):
+                cell = (key if i == 0 else "").ljust(left) + line
+                out.append(f"{v} {cell.ljust(inner)} {v}")
+        out.append(bl + h * (width - 2) + br)
+        return out
+
+    lines = ["", " Usage: rig [OPTIONS] COMMAND [ARGS]...", ""]
+    lines += [" " + t for t in textwrap.wrap(APP_HELP, width - 2)] + [""]
+    lines += panel("Options", [("--version", VERSION_HELP), ("--debug", DEBUG_HELP),
+                               ("--trace-frames", TRACE_FRAMES_HELP), ("--help", HELP_HELP)])
+    lines += panel("Commands", [(c.name, c.help) for c in COMMANDS])
+    return "\n".join(lines) + "\n"
 
 
 def _usage_line(exc: typer.TyperException) -> str:
@@ -114,8 +241,20 @@ def main(argv: list[str] | None = None) -> None:
     - ``--debug`` re-raises project and unexpected errors, so Python prints the traceback.
     """
     args = argv if argv is not None else sys.argv[1:]
+    if args == ["--help"]:  # answered from COMMANDS: no typer, no command module
+        sys.stdout.write(_fast_help())
+        sys.exit(0)
+    if args == ["--version"]:
+        sys.stdout.write(f"vsc-rig {__version__}\n")
+        sys.exit(0)
+    import typer
+
     debug = "--debug" in args or "--trace-frames" in args
     try:
+        name = _command_of(args)
+        # only the command that runs is imported (an unknown one: all, so that typer names the choices);
+        # a module attribute ``app`` set from outside (a test's stand-in) runs instead
+        app = globals().get("app") or build_app(None if name not in _BY_NAME else {name})
         # without standalone mode typer returns a command's exit code instead of exiting with it
         code = app(args=args, standalone_mode=False, prog_name="rig")
     except RigError as exc:
