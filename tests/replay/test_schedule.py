@@ -40,9 +40,11 @@ class FakeClock:
 class RecordingBus(can.BusABC):
     """Keeps every frame sent with the fake clock's time; receives nothing."""
 
-    def __init__(self, clock: FakeClock, stop_after: int | None = None, stop: threading.Event | None = None) -> None:
+    def __init__(self, clock: FakeClock, stop_after: int | None = None, stop: threading.Event | None = None,
+                 incoming: int = 0) -> None:
         super().__init__(channel="fake")
         self.clock = clock
+        self.incoming = [can.Message(arbitration_id=0x700, data=b"\x01") for _ in range(incoming)]
         self.sent: list[tuple[int, can.Message]] = []
         self._stop_after = stop_after
         self._stop = stop
@@ -54,7 +56,7 @@ class RecordingBus(can.BusABC):
             self._stop.set()
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        return None, False
+        return (self.incoming.pop() if self.incoming else None), False
 
 
 def plan_of(t_ms: list[float], ids: list[int]) -> ReplayPlan:
@@ -166,3 +168,21 @@ def test_bad_options_are_config_errors(kw: dict[str, Any], match: str) -> None:
             Replayer(periodic(3), bus, clock, **kw)
     finally:
         bus.shutdown()
+
+
+def test_frames_the_bus_receives_meanwhile_are_drained_when_there_is_time() -> None:
+    """A bench ECU's own traffic lands in the replaying bus's receive queue: it is read and dropped between
+    frames (only when the next frame is >= 2 ms away), so the queue does not grow over a long replay."""
+    clock = FakeClock()
+    bus = RecordingBus(clock, incoming=500)
+    try:
+        Replayer(periodic(20), bus, clock, lead_s=0.0).run()
+    finally:
+        bus.shutdown()
+    assert not bus.incoming and len(bus.sent) == 20
+    dense = RecordingBus(clock, incoming=500)
+    try:
+        Replayer(periodic(20, period_ms=1.0), dense, clock, lead_s=0.0).run()
+    finally:
+        dense.shutdown()
+    assert len(dense.incoming) == 500  # 1 ms apart: no time to spare, nothing read
