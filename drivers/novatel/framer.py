@@ -213,10 +213,33 @@ _ABBREV_HEADER = re.compile(
     rb" +[0-9A-Fa-f]+ +[0-9A-Fa-f]+ +\d+ *\r?$"
 )
 _NMEA_ADDRESS = re.compile(rb"\$[A-Z][A-Z0-9]{1,9},")
+#: After a scan that ended at a frame's end, new bytes are held until there are this many, or one of
+#: _WAKE_AFTER_FRAME arrives: a frame that completes within 10 bytes is a prompt (ends in ']'), a
+#: response (its line end), an NMEA sentence (has a '$') or an RTCM3 frame (has its 0xD3); text logs
+#: take 11 bytes at least and binary logs 16. So the header of the next binary log is scanned once.
+_AFTER_FRAME_LEN = 10
+#: Bytes without a sync byte held before they are counted as skipped (they can start no frame).
+_GARBAGE_HOLD = 512
+
+_WakeSearch = Callable[[bytes | bytearray | memoryview], Any]
+_Wake = tuple[frozenset[bytes], _WakeSearch]
+
+
+def _wake_on(pattern: bytes) -> _Wake:
+    """Bytes that end a wait early: as a set of 1-byte strings (a 1-byte feed is a hash lookup,
+    not a regex call) and as a regex search (for longer chunks)."""
+    compiled = re.compile(pattern)
+    return frozenset(bytes([c]) for c in range(256) if compiled.match(bytes([c]))), compiled.search
+
+
 # Bytes that end the wait of an incomplete frame before it reaches its expected length.
-_WAKE_TEXT_END = re.compile(rb"[*\r\n]").search  # a text frame waiting for its '*' (or a line break)
-_WAKE_LINE_END = re.compile(rb"\n").search  # an abbreviated-ASCII line waiting for its end
-_WAKE_NOT_HEX = re.compile(rb"[^0-9A-Fa-f]").search  # a CRC field that would stop being hex digits
+_WAKE_TEXT_END = _wake_on(rb"[*\r\n]")  # a text frame waiting for its '*' (or a line break)
+_WAKE_LINE_END = _wake_on(rb"\n")  # an abbreviated-ASCII line waiting for its end
+_WAKE_NOT_HEX = _wake_on(rb"[^0-9A-Fa-f]")  # a CRC field that would stop being hex digits
+_WAKE_NOT_44 = _wake_on(rb"[^\x44]")  # a binary sync's second byte that is not 0x44
+_WAKE_NOT_LT = _wake_on(rb"[^<]")  # after an abbreviated log's line: anything but a continuation's '<'
+_WAKE_SYNC = _wake_on(_SYNC.pattern)  # garbage held: only a sync byte can start a frame
+_WAKE_AFTER_FRAME = _wake_on(rb"[\]\n$\xd3]")  # see _AFTER_FRAME_LEN
 
 
 def _rtcm_number_plausible(number: int) -> bool:
@@ -250,15 +273,16 @@ class Framer:
         self._decode_nmea = decode_nmea
         self._decode_rtcm = decode_rtcm
         self._stats = FramerStats()
-        self._buf = b""  # scanned bytes still pending (the start of an incomplete frame)
-        self._more: list[bytes] = []  # chunks fed since the last scan, not yet joined to _buf
-        self._held = 0  # len(_buf) + the lengths in _more
-        # The last scan stopped inside an incomplete frame at _buf[0]; rescan when _held reaches
-        # _wake_len, or when a fed chunk holds a byte that _wake finds (see the module docstring).
-        self._wake_len = 1
-        self._wake: Callable[[bytes | bytearray | memoryview], Any] | None = None
+        # Bytes held: those the last scan left (the start of an incomplete frame) + those fed since.
+        self._acc = bytearray()
+        # Rescan when len(_acc) reaches _wake_len, or when a fed chunk holds a byte of _wake_set
+        # (found by _wake_search in a longer chunk); None: no byte ends the wait (module docstring).
+        self._wake_len = _AFTER_FRAME_LEN
+        self._wake_set: frozenset[bytes] | None
+        self._wake_search: _WakeSearch
+        self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
         self._abbrev_resume: tuple[int, int, int] | None = None  # stream offsets (start, next line, end)
-        self._base = 0  # stream offset of self._buf[0]
+        self._base = 0  # stream offset of self._acc[0]
         self._span_end = 0  # stream offset where the current rejected span ends
         self._span_reason = SkipReason.GARBAGE
         self._flush = False
@@ -279,19 +303,23 @@ class Framer:
     def stats(self) -> FramerStats:
         """Running counts (the live object: take :meth:`FramerStats.copy` for a snapshot)."""
         stats = self._stats
-        stats.bytes_in = self._base + self._held  # kept here, not per feed: feed(1 byte) stays cheap
+        stats.bytes_in = self._base + len(self._acc)  # kept here, not per feed: feed(1 byte) stays cheap
         return stats
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         """Add bytes; return the frames completed by them (in stream order)."""
-        if data:
-            self._more.append(bytes(data))
-            self._held = held = self._held + len(data)
-            if held < self._wake_len:
-                # Nothing can complete, or be rejected, before the wake condition: keep the bytes only.
-                wake = self._wake
-                if wake is None or wake(data) is None:
+        acc = self._acc
+        acc += data
+        if len(acc) < self._wake_len:
+            # No frame can complete, or be rejected, before the wake condition: keep the bytes only.
+            wake = self._wake_set
+            if wake is None:
+                return []
+            if len(data) == 1 and type(data) is bytes:  # a serial port's typical read: a hash lookup
+                if data not in wake:
                     return []
+            elif self._wake_search(data) is None:
+                return []
         return self._scan(final=False)
 
     def flush(self) -> list[Frame]:
@@ -309,27 +337,36 @@ class Framer:
     def finish(self) -> list[Frame]:
         """End of stream: complete what can be completed, count the rest as truncated or garbage."""
         frames = self._scan(final=True)
-        self._buf = b""
-        self._held = 0
+        self._acc.clear()
+        self._wake_len = _AFTER_FRAME_LEN
+        self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
         return frames
 
     @property
     def pending_bytes(self) -> int:
         """Bytes held while waiting for the rest of a frame."""
-        return self._held
+        return len(self._acc)
 
     # --- scanning -----------------------------------------------------------------------
 
     def _scan(self, final: bool) -> list[Frame]:
-        if self._more:
-            more = self._more[0] if len(self._more) == 1 else b"".join(self._more)
-            self._more = []
-            buf = self._buf + more if self._buf else more
-        else:
-            buf = self._buf
-        n = len(buf)
-        self._wake_len = 1
-        self._wake = None
+        acc = self._acc
+        n = len(acc)
+        if n >= 10 and acc[0] == 0xAA and not final and acc.startswith(_LONG_SYNC_28):
+            # A standard long binary log at the start: the usual wake-ups when frames are fed in small
+            # pieces (its header, then its last byte). The same decisions as the inline path below.
+            total = 32 + (acc[8] | acc[9] << 8)
+            if total <= self.max_frame_len:
+                if n < total:  # wait for the rest (as _parse_binary would say)
+                    self._wake_len = total
+                    self._wake_set = None
+                    return []
+                if n == total and self._decode_logs:
+                    frame = self._whole_binary(acc)
+                    if frame is not None:
+                        return [frame]
+        buf = bytes(acc)
+        self._wake_set = None  # a parser that stops at a NEED may set another
         pos = 0
         out: list[Frame] = []
         append = out.append
@@ -348,6 +385,15 @@ class Framer:
             else:
                 m = search(buf, pos)
                 if m is None:
+                    if final:
+                        pass
+                    elif buf[pos:].strip(b"\r\n"):
+                        # Until a sync byte arrives, held bytes can complete nothing; count them then.
+                        self._wake_len = _GARBAGE_HOLD
+                        self._wake_set, self._wake_search = _WAKE_SYNC
+                    else:  # only the line end of a text frame
+                        self._wake_len = _AFTER_FRAME_LEN
+                        self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
                     self._skip(buf, pos, n)
                     pos = n
                     break
@@ -394,7 +440,7 @@ class Framer:
             elif status == _NEED:
                 if not final:
                     pos = start
-                    self._wake_len = end - start  # relative to the new buffer start; _wake set by the parser
+                    self._wake_len = end - start  # relative to the new buffer start; _wake_set by the parser
                     break
                 if payload is not None:
                     # The stream ended inside a frame: count it once, then look inside it.
@@ -424,14 +470,44 @@ class Framer:
                 self._skip(buf, start, start + 1)
                 pos = start + 1
             span_rel = self._span_end - self._base
+        else:  # ended at a frame's end (or a rejected byte)
+            self._wake_len = _AFTER_FRAME_LEN
+            self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
         if fast_count:
             stats.frames[_BINARY] += fast_count
             stats.bytes_in_frames += fast_bytes
-        stats.line_end_bytes += line_ends
+        if line_ends:
+            stats.line_end_bytes += line_ends
         self._base += pos
-        self._buf = buf[pos:] if pos < n else b""
-        self._held = n - pos
+        if pos == n:
+            acc.clear()
+        elif pos:
+            del acc[:pos]
         return out
+
+    def _whole_binary(self, acc: bytearray) -> Frame | None:
+        """The held bytes as one standard long binary log with a good CRC and a generated decoder,
+        taken like the inline path of :meth:`_scan` takes it; None (nothing changed) otherwise."""
+        raw = bytes(acc)
+        if _crc32(raw, 0xFFFFFFFF) != 0xFFFFFFFF:
+            return None
+        try:
+            frame: Frame | None = _FAST_FRAMES_GET(raw[4] | raw[5] << 8, _fast_raw_frame)(raw)
+        except KeyError:
+            return None
+        if frame is None:
+            return None
+        base = self._base
+        if self._span_end > base:  # an accepted frame ends the rejected span
+            self._span_end = base
+        stats = self._stats
+        stats.frames[_BINARY] += 1
+        stats.bytes_in_frames += len(raw)
+        self._base = base + len(raw)
+        acc.clear()
+        self._wake_len = _AFTER_FRAME_LEN
+        self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
+        return frame
 
     def _in_span(self, start: int, reason: SkipReason) -> bool:
         return self._base + start < self._span_end and self._span_reason is reason
@@ -467,7 +543,9 @@ class Framer:
         if avail < 3:
             if avail == 2 and buf[start + 1] != 0x44:
                 return _NOT_FRAME, 0, None
-            return _NEED, start + avail + 1, None
+            if avail == 1:  # only a second byte other than 0x44 decides before the third arrives
+                self._wake_set, self._wake_search = _WAKE_NOT_44
+            return _NEED, start + 3, None
         b2 = buf[start + 2]
         if buf[start + 1] != 0x44 or (b2 != 0x12 and b2 != 0x13):
             return _NOT_FRAME, 0, None
@@ -511,7 +589,7 @@ class Framer:
                 return self._text_cut(buf, start, brk.start(), kind)
             if limit - start >= self.max_frame_len:
                 return _OVERSIZE, 0, kind
-            self._wake = _WAKE_TEXT_END
+            self._wake_set, self._wake_search = _WAKE_TEXT_END
             return _NEED, start + self.max_frame_len, kind
         nl = buf.find(b"\n", start + 2, star)
         cr = buf.find(b"\r", start + 2, star)
@@ -521,7 +599,7 @@ class Framer:
         if end > n:
             if n > star + 1 and not _is_hex_prefix(buf, star + 1, n):
                 return self._text_cut(buf, start, star + 1, kind)
-            self._wake = _WAKE_NOT_HEX
+            self._wake_set, self._wake_search = _WAKE_NOT_HEX
             return _NEED, end, kind
         crc_text = buf[star + 1 : end]
         if crc_text.strip(_HEX_DIGITS):  # something other than 8 hex digits
@@ -570,7 +648,7 @@ class Framer:
                 if limit - start >= self.max_frame_len:
                     return _NOT_FRAME, 0, None
                 if not final:
-                    self._wake = _WAKE_LINE_END
+                    self._wake_set, self._wake_search = _WAKE_LINE_END
                     return _NEED, start + self.max_frame_len, None
                 line_end = n
             else:
@@ -591,7 +669,9 @@ class Framer:
                 if complete_at_end:
                     break
                 self._abbrev_resume = (base + start, base + p, base + last_end)
-                return _NEED, p + 1, kind
+                # A '<' next changes nothing until the byte after it; anything else completes the log.
+                self._wake_set, self._wake_search = _WAKE_NOT_LT
+                return _NEED, p + 2, kind
             if buf[p] != 0x3C:  # not '<': the log is complete
                 break
             if p + 1 >= n:
@@ -607,7 +687,7 @@ class Framer:
                     return _OVERSIZE, 0, kind
                 if not final:
                     self._abbrev_resume = (base + start, base + p, base + last_end)
-                    self._wake = _WAKE_LINE_END
+                    self._wake_set, self._wake_search = _WAKE_LINE_END
                     return _NEED, start + self.max_frame_len, kind
                 q = n
             last_end = q - 1 if q > p and buf[q - 1] == 0x0D else q
@@ -644,7 +724,7 @@ class Framer:
                 return self._nmea_cut(buf, start, brk.start())
             if limit - start >= min(MAX_NMEA_LEN, self.max_frame_len):
                 return _NOT_FRAME, 0, None
-            self._wake = _WAKE_TEXT_END
+            self._wake_set, self._wake_search = _WAKE_TEXT_END
             return _NEED, start + min(MAX_NMEA_LEN, self.max_frame_len), kind
         brk = _LINE_BREAK.search(buf, start + 2, star)
         if brk is not None:
@@ -653,7 +733,7 @@ class Framer:
         if end > n:
             if n > star + 1 and not _is_hex_prefix(buf, star + 1, n):
                 return self._nmea_cut(buf, start, star + 1)
-            self._wake = _WAKE_NOT_HEX
+            self._wake_set, self._wake_search = _WAKE_NOT_HEX
             return _NEED, end, kind
         if _HEX2.fullmatch(buf, star + 1, end) is None:
             return self._nmea_cut(buf, start, star + 1)
