@@ -39,6 +39,7 @@ import re
 import threading
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -50,7 +51,7 @@ from cantools.database.can import Message as DbcMessage
 
 import rig.topics as T  # noqa: N812 - short alias
 from drivers.can.bus import CanBusConfig, open_bus
-from drivers.can.checks import CAN_EFF_FLAG
+from drivers.can.checks import CAN_EFF_FLAG, ChecksumAlgorithm
 from drivers.can.roles import RoleMap, RoleSpec
 from drivers.can.vector_encode import MessageEncoder, SignalLayout
 from vsccore.clock import Clock
@@ -151,8 +152,8 @@ def parse_bus_spec(spec: str, *, bus: str | None = None) -> CanBusConfig:
 # ---------------------------------------------------------------------------------------------
 
 
-class FaultKind:
-    """What a fault does to its signal (string constants: they are the words of the ``--fault`` syntax)."""
+class FaultKind(StrEnum):
+    """What a fault does to its signal (the values are the words of the ``--fault`` syntax)."""
 
     OFFSET = "offset"
     """Add ``value`` (SI for a role, the DBC's physical unit for ``MESSAGE.SIGNAL``)."""
@@ -160,8 +161,6 @@ class FaultKind:
     """Hold the value of the last frame before the window (the sensor stuck)."""
     DROPOUT = "dropout"
     """Send ``value`` (default 0) and, when the role has a quality bit, mark it invalid (the sensor lost)."""
-
-    ALL = (OFFSET, FREEZE, DROPOUT)
 
 
 _TARGET = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)?$")
@@ -173,7 +172,7 @@ class Fault:
 
     target: str
     """A rig role (``yaw_rate``) or ``MESSAGE.SIGNAL``."""
-    kind: str
+    kind: FaultKind
     value: float = 0.0
     start_s: float = 0.0
     """Window start, seconds from the recorded bus's first frame."""
@@ -183,7 +182,7 @@ class Fault:
     def __str__(self) -> str:
         value = f"={self.value:g}" if self.kind != FaultKind.FREEZE else ""
         end = "" if math.isinf(self.end_s) else f"..{self.end_s:g}"
-        return f"{self.target}:{self.kind}{value}@{self.start_s:g}{end}"
+        return f"{self.target}:{self.kind.value}{value}@{self.start_s:g}{end}"
 
 
 def parse_fault(text: str) -> Fault:
@@ -204,8 +203,8 @@ def parse_fault(text: str) -> Fault:
     kind, eq, value_text = spec.partition("=")
     if not colon or not _TARGET.match(target) or (at and not window) or (eq and not value_text):
         raise ConfigError(f"{where}: expected TARGET:KIND[=VALUE][@T0[..T1]], e.g. yaw_rate:offset=0.05@10..20")
-    if kind not in FaultKind.ALL:
-        raise ConfigError(f"{where}: unknown fault kind {kind!r} (known: {', '.join(FaultKind.ALL)})")
+    if kind not in {k.value for k in FaultKind}:
+        raise ConfigError(f"{where}: unknown fault kind {kind!r} (known: {', '.join(k.value for k in FaultKind)})")
     value = 0.0
     if eq:
         if kind == FaultKind.FREEZE:
@@ -221,7 +220,7 @@ def parse_fault(text: str) -> Fault:
             end = _float(t1, f"{where}: window end")
     if start < 0 or end <= start:
         raise ConfigError(f"{where}: window {start:g}..{end:g} s must have 0 <= start < end")
-    return Fault(target, kind, value, start, end)
+    return Fault(target, FaultKind(kind), value, start, end)
 
 
 def _float(text: str, where: str) -> float:
@@ -355,8 +354,8 @@ class _Rewrite:
     """Plan rows of this message with the DBC's length (others are never rewritten)."""
     counter: _Bits | None
     checksum: _Bits | None
-    algorithm: Any
-    """A :class:`drivers.can.checks.ChecksumAlgorithm` (None: no checksum to recompute)."""
+    algorithm: ChecksumAlgorithm | None
+    """None: no checksum to recompute."""
 
     def seal(self, data: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
         """Rows of this message with their checksum recomputed."""
