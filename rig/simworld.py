@@ -137,18 +137,34 @@ class _LinkedBus(can.BusABC):
         self._inner = inner
         self._link = link
         self._reader = reader
+        self._taken: int | None = None
         self.channel_info = f"simulated adapter on {inner.channel_info}"
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        self._report_taken()
         if not self._link.connected:
+            self._not_reading()
             raise can.CanOperationError("simulated CAN adapter unplugged")
         msg = self._inner.recv(timeout)
         if not self._link.connected:
+            self._not_reading()
             raise can.CanOperationError("simulated CAN adapter unplugged")
         if msg is not None and self._reader is not None:
-            # the simulated ECU's stamp of the frame just taken: its sender sees how far this reader got
-            self._reader.set_value(round(msg.timestamp * 1e9))
+            # reported as taken when the reader comes back for the next frame, i.e. once it has stamped
+            # and handled this one: until then the governed clock holds (from the reader's first frame
+            # on; what was sent before it was connected is not owed)
+            self._taken = round(msg.timestamp * 1e9)
         return msg, False
+
+    def _report_taken(self) -> None:
+        if self._taken is not None and self._reader is not None:
+            self._reader.took(self._taken)
+            self._taken = None
+
+    def _not_reading(self) -> None:
+        self._taken = None
+        if self._reader is not None:
+            self._reader.not_reading()  # owes nothing: the clock must not wait for it
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if not self._link.connected:
@@ -156,6 +172,7 @@ class _LinkedBus(can.BusABC):
         self._inner.send(msg, timeout)
 
     def shutdown(self) -> None:
+        self._not_reading()
         super().shutdown()
         self._inner.shutdown()
 
@@ -528,7 +545,8 @@ class SimWorld:
             raise DeviceError(f"{config.describe()}: simulated CAN adapter unplugged")
         reader = None
         if config.interface == "virtual" and self.clock is not None:
-            reader = participant(self.clock, can_reader_name(config.channel), progress_ns=UNBOUNDED_NS, reuse=True)
+            reader = participant(self.clock, can_reader_name(config.channel), progress_ns=UNBOUNDED_NS, reuse=True,
+                                 value=UNBOUNDED_NS)
         if self._host is not None and config.interface == "virtual":
             config = self._host.can_config(config)
         return _LinkedBus(open_bus(config), self.can_link, reader)

@@ -38,7 +38,6 @@ import importlib.resources
 import logging
 import math
 import threading
-from collections import deque
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,7 +54,7 @@ from drivers.can.dbc import load_dbc
 from drivers.can.vector_encode import MessageEncoder, SignalLayout
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from sim_devices.vehicle.truth import GroundTruth
-from vsccore.clock import UNBOUNDED_NS, Clock, Participant, participant
+from vsccore.clock import UNBOUNDED_NS, Clock, participant
 from vsccore.errors import EncodeError, SimulationError
 
 __all__ = [
@@ -824,8 +823,10 @@ class VscEcu:
 
     On a governed clock (:class:`~vsccore.clock.ClockGovernor`) the ECU is a participant called
     ``name``: simulated time waits for it, and, when ``reader`` names the participant that reads the
-    bus (publishing the stamp of each frame it takes), for that reader too, so a starved reader
-    holds the clock instead of receiving its frames late.
+    bus (publishing the stamp of each frame it takes), for that reader too: the ECU announces each
+    frame as it sends it, and simulated time stands still while the reader owes a frame more than
+    the governor's budget old, so a starved reader holds the clock instead of receiving its frames
+    late (and the clock runs on the moment it has taken them).
 
     The constructor computes the whole drive (:func:`simulate_ecu`), which takes a while for long
     drives; pass ``outputs`` computed beforehand (with the same ``config``) when ``t0_ns`` is close.
@@ -906,46 +907,21 @@ class VscEcu:
         send = self._bus.send
         max_lag = self._max_lag_ns
         due = (self._t0_ns + np.round(table.t * 1e9).astype(np.int64)).tolist()
-        sent: deque[int] = deque()
         with participant(clock, self._name, progress_ns=due[0] if due else UNBOUNDED_NS) as me:
-            track = me.governed and self._reader is not None
+            if self._reader is not None:
+                me.feeds(self._reader)
             for due_ns, frame_id, data in zip(due, table.frame_id.tolist(), table.payload, strict=True):
-                if not self._wait(due_ns, me, sent):
+                me.at(due_ns)
+                if not clock.sleep_until_ns(due_ns, self._stop):
                     return
                 if clock.now_ns() - due_ns > max_lag:
                     self.frames_skipped += 1
                     continue
+                me.sent(due_ns)  # before the frame can reach the reader: from now on it owes it
                 send(_SentFrame(timestamp=due_ns / 1e9, arbitration_id=frame_id, is_extended_id=False, data=data,
                                 dlc=len(data)))
                 self.frames_sent += 1
-                if track:
-                    sent.append(due_ns)
         self.finished.set()
-
-    _STAMP_TOLERANCE_NS = 2_000
-    """A reader's stamp comes back through float seconds (and socketcand's µs): frames this close count as read."""
-
-    def _wait(self, due_ns: int, me: Participant, sent: deque[int]) -> bool:
-        """Wait until ``due_ns``, publishing how far the ECU (and its reader) got; False when stopped."""
-        clock, stop = self._clock, self._stop
-        while True:
-            oldest = None
-            if sent and self._reader is not None:
-                taken = me.peer_value(self._reader)
-                if taken is None:  # nobody reads the bus (yet): nothing to wait for
-                    sent.clear()
-                else:
-                    while sent and sent[0] <= taken + self._STAMP_TOLERANCE_NS:
-                        sent.popleft()
-                    oldest = sent[0] if sent else None
-            me.at(due_ns if oldest is None else min(due_ns, oldest))
-            if oldest is None:
-                return clock.sleep_until_ns(due_ns, stop)
-            if clock.now_ns() >= due_ns:
-                return not stop.is_set()
-            # frames the reader has not taken yet: look again within a millisecond of wall time
-            if stop.wait(0.001):
-                return False
 
 
 class SimulatedVscBus:

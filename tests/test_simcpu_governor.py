@@ -104,7 +104,8 @@ def test_a_participant_stalled_past_the_limit_is_released() -> None:
         assert gov.stats().ignored == 1
         me.at(clock.now_ns())  # it came back: governed again
         t = clock.now_ns()
-        assert _wait_until(lambda: gov.paused_now(), 5.0)
+        # the clock decides when it is asked: ask until it stands still at the new progress + budget
+        assert _wait_until(lambda: clock.now_ns() > 0 and gov.paused_now(), 5.0)
         assert clock.now_ns() <= max(t, me.progress_ns + 1 * MS)
     finally:
         gov.close()
@@ -127,18 +128,54 @@ def test_the_ecu_waits_for_a_reader_that_does_not_read(governor: ClockGovernor) 
         first_ns = round(first.timestamp * 1e9)
         assert _wait_until(governor.paused_now)
         assert clock.now_ns() <= first_ns + 5 * MS + 2_000
-        # now read every frame as it comes, and publish how far we got: the drive runs to its end
+        # now read every frame as it comes, and report each one: the drive runs to its end
+        reader.took(first_ns)
         late = 0
-        while not ecu.finished.is_set() or rx.recv(0) is not None:
+        while True:
             msg = rx.recv(0.05)
             if msg is None:
+                if ecu.finished.is_set():
+                    break
                 continue
             stamp = round(msg.timestamp * 1e9)
             late = max(late, clock.now_ns() - stamp)
-            reader.set_value(stamp)
+            reader.took(stamp)
         assert ecu.frames_skipped == 0 and ecu.frames_sent > 100
         assert late <= 5 * MS + 2_000 + 1 * MS  # budget, stamp rounding, and the step to the next frame
     finally:
         ecu.stop()
         tx.shutdown()
         rx.shutdown()
+
+
+def test_a_consumer_holds_the_clock_until_it_took_every_frame_of_a_burst(governor: ClockGovernor) -> None:
+    """Frames sent with one stamp are owed one by one (taking the first is not taking the burst), and
+    the clock runs on the moment the last one is taken, without the producer looking."""
+    clock = ScaledClock(0, 1000.0, governor=governor)
+    rx = participant(clock, "canrx:burst", progress_ns=UNBOUNDED_NS, value=UNBOUNDED_NS)
+    ecu = participant(clock, "ecu:burst", progress_ns=10 * MS)
+    ecu.feeds("canrx:burst")
+    assert ecu.linked
+    assert clock.sleep_until_ns(10 * MS)
+    for _ in range(3):
+        ecu.sent(10 * MS)  # not reading yet: owes nothing, the clock runs to the ECU's 10 + 5 ms
+    assert _wait_until(lambda: clock.now_ns() == 15 * MS and governor.paused_now())
+    ecu.at(40 * MS)
+    assert _wait_until(lambda: clock.now_ns() == 45 * MS)
+    rx.took(10 * MS)  # connected mid-burst: its first frame counts as the whole burst
+    for _ in range(3):
+        ecu.sent(40 * MS)
+    ecu.at(60 * MS)
+    assert clock.now_ns() == 45 * MS  # owes the 40 ms burst: held at 40 + 5 ms
+    rx.took(40 * MS)
+    rx.took(40 * MS)
+    assert all(clock.now_ns() == 45 * MS for _ in range(20))  # one frame still owed
+    rx.took(40 * MS)
+    # all taken: the clock runs on to the ECU's own 60 + 5 ms, with nobody but the reader acting
+    assert _wait_until(lambda: clock.now_ns() == 65 * MS, 5.0)
+    assert governor.stats().blamed_wall_ns.get("canrx:burst", 0) > 0
+    ecu.sent(60 * MS)
+    ecu.at(UNBOUNDED_NS)
+    assert clock.now_ns() == 65 * MS  # owes the 60 ms frame
+    rx.not_reading()  # unplugged: owes nothing any more
+    assert _wait_until(lambda: clock.now_ns() > 200 * MS)

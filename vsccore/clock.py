@@ -19,9 +19,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-import numpy as np
-import numpy.typing as npt
-
 log = logging.getLogger(__name__)
 
 
@@ -133,16 +130,27 @@ class ScaledClock:
 # ---------------------------------------------------------------------------------------------
 
 UNBOUNDED_NS = (1 << 63) - 1
-"""Progress of a participant that holds nothing back (idle, finished)."""
+"""Progress of a participant that holds nothing back (idle, finished); also the value of a consumer
+that reads nothing (see :meth:`Participant.feeds`)."""
 
 _HDR = 16
 """int64 words of the shared header (see :class:`ClockGovernor`)."""
-_SLOT = 8
-"""int64 words per participant slot: progress, ignored value, blamed wall ns, a free value, then the name."""
+_SLOT = 12
+"""int64 words per participant slot: progress, ignored value, blamed wall ns, a free value (a consumer's
+last taken stamp, a producer's newest sent stamp), the consumer slot + 1 (0: none), the producer's
+previous sent stamp, the frames with the newest stamp (sent or taken), those with the previous stamp
+(sent), then the name."""
+(_S_PROGRESS, _S_IGNORED, _S_BLAMED, _S_VALUE, _S_PEER, _S_PREV, _S_COUNT, _S_PREV_COUNT) = range(8)
+_S_NAME = 8
+ALL_FRAMES = 1 << 62
+"""Count of a consumer's first stamp after it (re)connected: what was sent before is not owed."""
 _MAX_SLOTS = 64
-_NAME_BYTES = 32
-_MAGIC = 0x56534347  # "VSCG"
+_NAME_BYTES = (_SLOT - _S_NAME) * 8
+_MAGIC = 0x56534348  # "VSCH": slot layout 2
 (_H_MAGIC, _H_SLOTS, _H_PAUSED, _H_HIGH, _H_CLAMP_SINCE, _H_OFF, _H_PAUSES, _H_IGNORED) = range(8)
+_NEVER = -(1 << 63)
+STAMP_TOLERANCE_NS = 2_000
+"""A consumer's stamp comes back through float seconds (and socketcand's µs): frames this close count as taken."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -181,8 +189,15 @@ class ClockGovernor:
     never runs more than ``budget_ns`` past the smallest progress: when it would, the clock stands
     still (the paused wall time grows) until that participant catches up.
 
+    A *producer* (a simulated ECU) may name the *consumer* that reads what it sends (its CAN reader,
+    :meth:`Participant.feeds`): the producer publishes the stamp of every frame as it sends it, the
+    consumer the stamp of every frame it takes, and while the consumer owes frames its producer's
+    progress counts as no later than the oldest frame owed. Every copy evaluates that on every
+    :meth:`now_ns`, so the clock runs again the moment the consumer has taken its frames — nobody
+    polls for it.
+
     A participant that holds the clock longer than ``stall_limit_s`` of wall time (a reader that
-    went away) is released with a log warning, until it publishes a new progress.
+    went away) is released with a log warning, until its progress (or what it owes) changes.
     """
 
     def __init__(self, path: str, budget_ns: int, stall_limit_s: float, *, create: bool) -> None:
@@ -202,11 +217,15 @@ class ClockGovernor:
         except BaseException:
             os.close(self._fd)
             raise
-        self._w = np.frombuffer(self._mm, dtype=np.int64)
+        # int64 words; a memoryview indexes a handful of words far faster than numpy does
+        self._w = memoryview(self._mm).cast("q")
         if create:
             self._w[_H_MAGIC] = _MAGIC
         elif int(self._w[_H_MAGIC]) != _MAGIC:
-            raise ValueError(f"clock governor {path}: not a governor state file")
+            self._w.release()
+            self._mm.close()
+            os.close(self._fd)
+            raise ValueError(f"clock governor {path}: not a governor state file (of this version)")
         self._tlock = threading.Lock()
         self._final = (0, 0)
         self._stats: GovernorStats | None = None
@@ -228,7 +247,7 @@ class ClockGovernor:
                 return
             self._stats = self.stats()
             self._final = (int(self._w[_H_PAUSED]), int(self._w[_H_HIGH]))
-            del self._w
+            self._w.release()
             with contextlib.suppress(BufferError):
                 self._mm.close()
             os.close(self._fd)
@@ -238,7 +257,7 @@ class ClockGovernor:
                 os.unlink(self.path)
 
     @contextlib.contextmanager
-    def _locked(self) -> Iterator[npt.NDArray[np.int64]]:
+    def _locked(self) -> Iterator[memoryview]:
         with self._tlock:
             if self._fd < 0:
                 raise ValueError(f"clock governor {self.path}: closed")
@@ -250,36 +269,72 @@ class ClockGovernor:
 
     # --- participants ---------------------------------------------------------------------------
 
-    def register(self, name: str, progress_ns: int, *, reuse: bool = False) -> int:
-        """A new slot for participant ``name`` starting at ``progress_ns`` (``reuse``: the slot of that
-        name if there is one); its index."""
+    def register(self, name: str, progress_ns: int, *, reuse: bool = False, value: int = 0) -> int:
+        """A new slot for participant ``name`` starting at ``progress_ns`` with free value ``value``
+        (``reuse``: the slot of that name if there is one); its index."""
         raw = name.encode("utf-8")[:_NAME_BYTES].ljust(_NAME_BYTES, b"\0")
         with self._locked() as w:
             n = int(w[_H_SLOTS])
-            if reuse and name in self.names():
-                k = self.names().index(name)
-                w[_HDR + k * _SLOT] = progress_ns
-                return k
+            names = self.names()
+            if reuse and name in names:
+                base = _HDR + names.index(name) * _SLOT
+                w[base + _S_COUNT] = ALL_FRAMES
+                w[base + _S_VALUE] = value
+                w[base + _S_PROGRESS] = progress_ns
+                return names.index(name)
             if n >= _MAX_SLOTS:
                 raise ValueError(f"clock governor: no slot left for participant {name!r} ({_MAX_SLOTS} in use)")
             base = _HDR + n * _SLOT
-            w[base] = progress_ns
-            w[base + 1] = -1
-            w[base + 2] = 0
-            w[base + 3] = 0
-            w[base + 4: base + _SLOT] = np.frombuffer(raw, dtype=np.int64)
+            w[base + _S_PROGRESS] = progress_ns
+            w[base + _S_IGNORED] = _NEVER  # no progress equals it: not released
+            w[base + _S_BLAMED] = 0
+            w[base + _S_VALUE] = value
+            w[base + _S_PEER] = 0
+            w[base + _S_PREV] = value
+            w[base + _S_COUNT] = ALL_FRAMES
+            w[base + _S_PREV_COUNT] = 0
+            for i in range(_SLOT - _S_NAME):
+                w[base + _S_NAME + i] = int.from_bytes(raw[8 * i: 8 * i + 8], "little", signed=True)
             w[_H_SLOTS] = n + 1
             return n
 
     def publish(self, slot: int, progress_ns: int) -> None:
         """Set a slot's progress (one writer per slot: an aligned 8-byte store needs no lock)."""
         if self._fd >= 0:
-            self._w[_HDR + slot * _SLOT] = progress_ns
+            self._w[_HDR + slot * _SLOT + _S_PROGRESS] = progress_ns
 
     def set_value(self, slot: int, value: int) -> None:
-        """Set a slot's free value (a reader's last consumed stamp, for its producer to see)."""
+        """Set a slot's free value (a consumer's last taken stamp, for its producer to see)."""
         if self._fd >= 0:
-            self._w[_HDR + slot * _SLOT + 3] = value
+            self._w[_HDR + slot * _SLOT + _S_VALUE] = value
+
+    def link(self, producer: int, consumer: int) -> None:
+        """Make ``consumer`` the reader of what ``producer`` sends (see :meth:`sent`)."""
+        if self._fd >= 0:
+            self._w[_HDR + producer * _SLOT + _S_PEER] = consumer + 1
+
+    def sent(self, slot: int, stamp_ns: int) -> None:
+        """Producer ``slot`` sends a frame stamped ``stamp_ns`` now (stamps never decrease)."""
+        if self._fd >= 0:
+            base = _HDR + slot * _SLOT
+            w = self._w
+            last = w[base + _S_VALUE]
+            if stamp_ns != last:
+                # the previous burst first, the new stamp last: a concurrent look sees at worst the
+                # previous state, never more frames taken than there were
+                w[base + _S_PREV_COUNT] = w[base + _S_COUNT]
+                w[base + _S_PREV] = last
+                w[base + _S_COUNT] = 1
+                w[base + _S_VALUE] = stamp_ns
+            else:
+                w[base + _S_COUNT] += 1
+
+    def took(self, slot: int, stamp_ns: int, count: int) -> None:
+        """Consumer ``slot`` has taken ``count`` frames stamped ``stamp_ns`` (and all before them)."""
+        if self._fd >= 0:
+            base = _HDR + slot * _SLOT
+            self._w[base + _S_COUNT] = count  # the count first: seen early it only means fewer taken
+            self._w[base + _S_VALUE] = stamp_ns
 
     def find(self, name: str) -> int | None:
         """The slot index of participant ``name`` (None: not registered)."""
@@ -290,20 +345,19 @@ class ClockGovernor:
 
     def value_at(self, slot: int) -> int:
         """The free value of slot ``slot``."""
-        return int(self._w[_HDR + slot * _SLOT + 3]) if self._fd >= 0 else 0
+        return int(self._w[_HDR + slot * _SLOT + _S_VALUE]) if self._fd >= 0 else 0
 
     def names(self) -> list[str]:
         n = int(self._w[_H_SLOTS])
         out = []
         for i in range(n):
-            base = _HDR + i * _SLOT
-            out.append(self._w[base + 4: base + _SLOT].tobytes().rstrip(b"\0").decode("utf-8", "replace"))
+            base = (_HDR + i * _SLOT + _S_NAME) * 8
+            out.append(bytes(self._mm[base: base + _NAME_BYTES]).rstrip(b"\0").decode("utf-8", "replace"))
         return out
 
     def progress(self) -> dict[str, int]:
         """Every participant's current progress (ns of simulated time; UNBOUNDED_NS when idle)."""
-        n = int(self._w[_H_SLOTS])
-        return {name: int(self._w[_HDR + i * _SLOT]) for i, name in enumerate(self.names()[:n])}
+        return {name: int(self._w[_HDR + i * _SLOT]) for i, name in enumerate(self.names())}
 
     # --- the clock --------------------------------------------------------------------------------
 
@@ -316,42 +370,68 @@ class ClockGovernor:
         with self._locked() as w:
             w[_H_OFF] = 1
 
+    def _slowest(self, w: memoryview) -> tuple[int, int, int]:
+        """(effective progress, slot holding it, slot to blame) of the slowest live participant;
+        (UNBOUNDED_NS, -1, -1) when nobody holds the clock."""
+        best, who, blame = UNBOUNDED_NS, -1, -1
+        for k in range(int(w[_H_SLOTS])):
+            base = _HDR + k * _SLOT
+            p = w[base + _S_PROGRESS]
+            culprit = k
+            peer = w[base + _S_PEER]
+            if peer:
+                # frames sent that the consumer has not taken hold the producer back to the oldest owed
+                cbase = _HDR + (peer - 1) * _SLOT
+                taken = w[cbase + _S_VALUE]
+                n_taken = w[cbase + _S_COUNT]
+                sent = w[base + _S_VALUE]
+                owed = UNBOUNDED_NS
+                if taken == UNBOUNDED_NS:
+                    pass  # not reading: owes nothing
+                elif abs(sent - taken) <= STAMP_TOLERANCE_NS:
+                    if n_taken < w[base + _S_COUNT]:
+                        owed = sent  # the rest of the newest burst
+                elif sent > taken:
+                    prev = w[base + _S_PREV]
+                    if abs(prev - taken) <= STAMP_TOLERANCE_NS:
+                        owed = prev if n_taken < w[base + _S_PREV_COUNT] else sent
+                    else:
+                        owed = taken if prev > taken else sent  # behind by more than a burst: at least
+                if owed < p:
+                    p, culprit = owed, peer - 1
+            if p < best and p != w[base + _S_IGNORED]:
+                best, who, blame = p, k, culprit
+        return best, who, blame
+
     def now_ns(self, start_ns: int, speed: float, mono0: int) -> int:
         """Current governed time (see the class docstring)."""
         with self._locked() as w:
             mono = time.monotonic_ns()
-            free = start_ns + int((mono - mono0 - int(w[_H_PAUSED])) * speed)
-            high = int(w[_H_HIGH])
-            n = int(w[_H_SLOTS])
+            free = start_ns + int((mono - mono0 - w[_H_PAUSED]) * speed)
+            high = w[_H_HIGH]
             limit = UNBOUNDED_NS
-            who = -1
-            if n and int(w[_H_OFF]) == 0:
-                slots = w[_HDR: _HDR + n * _SLOT].reshape(n, _SLOT)
-                prog = slots[:, 0]
-                live = prog != slots[:, 1]
-                if live.any():
-                    idx = np.flatnonzero(live)
-                    k = int(idx[np.argmin(prog[idx])])
-                    if int(prog[k]) < UNBOUNDED_NS - self.budget_ns:
-                        limit, who = int(prog[k]) + self.budget_ns, k
+            who = blame = -1
+            if w[_H_OFF] == 0:
+                prog, who, blame = self._slowest(w)
+                if who >= 0 and prog < UNBOUNDED_NS - self.budget_ns:
+                    limit = prog + self.budget_ns
             t = free
             if free > limit:
                 t = max(limit, high)
                 paused = int((free - t) / speed)
                 if paused > 0:
                     w[_H_PAUSED] += paused
-                    w[_HDR + who * _SLOT + 2] += paused
-                    since = int(w[_H_CLAMP_SINCE])
+                    w[_HDR + blame * _SLOT + _S_BLAMED] += paused
+                    since = w[_H_CLAMP_SINCE]
                     if since == 0:
                         w[_H_CLAMP_SINCE] = mono
                         w[_H_PAUSES] += 1
                     elif mono - since > self.stall_limit_ns:
-                        base = _HDR + who * _SLOT
-                        w[base + 1] = w[base]
+                        w[_HDR + who * _SLOT + _S_IGNORED] = limit - self.budget_ns
                         w[_H_IGNORED] += 1
                         w[_H_CLAMP_SINCE] = 0
                         log.warning("governed clock: %s held simulated time for %.1f s of wall time; released",
-                                    self.names()[who], (mono - since) / 1e9)
+                                    self.names()[blame], (mono - since) / 1e9)
             else:
                 w[_H_CLAMP_SINCE] = 0
             t = max(t, high)
@@ -381,13 +461,14 @@ class ClockGovernor:
                 raise ValueError(f"clock governor {self.path}: closed before any statistics")
             return self._stats
         names = self.names()
+        w = self._w
         return GovernorStats(
             budget_ns=self.budget_ns,
-            paused_wall_ns=int(self._w[_H_PAUSED]),
-            pauses=int(self._w[_H_PAUSES]),
-            ignored=int(self._w[_H_IGNORED]),
-            blamed_wall_ns={nm: int(self._w[_HDR + i * _SLOT + 2]) for i, nm in enumerate(names)
-                            if int(self._w[_HDR + i * _SLOT + 2]) > 0},
+            paused_wall_ns=int(w[_H_PAUSED]),
+            pauses=int(w[_H_PAUSES]),
+            ignored=int(w[_H_IGNORED]),
+            blamed_wall_ns={nm: int(w[_HDR + i * _SLOT + _S_BLAMED]) for i, nm in enumerate(names)
+                            if int(w[_HDR + i * _SLOT + _S_BLAMED]) > 0},
         )
 
 
@@ -399,20 +480,34 @@ class Participant:
     """A device or reader that a governed clock waits for (see :class:`ClockGovernor`).
 
     :meth:`at` publishes the simulated time up to which it has done its work; :meth:`idle` says it
-    holds nothing back; :meth:`close` (or leaving the ``with`` block) ends its part. On a clock
-    that is not governed the calls change nothing.
+    holds nothing back; :meth:`close` (or leaving the ``with`` block) ends its part. A producer
+    names its consumer with :meth:`feeds` and announces every frame with :meth:`sent`; the consumer
+    reports every frame it takes with :meth:`took` and :meth:`not_reading` when it stops (a consumer
+    registered with value ``UNBOUNDED_NS`` owes nothing until its first frame). On a clock that is
+    not governed the calls change nothing.
     """
 
-    def __init__(self, governor: ClockGovernor | None, name: str, progress_ns: int, *, reuse: bool = False) -> None:
+    def __init__(self, governor: ClockGovernor | None, name: str, progress_ns: int, *, reuse: bool = False,
+                 value: int = 0) -> None:
         self.name = name
         self._gov = governor
-        self._slot = governor.register(name, progress_ns, reuse=reuse) if governor is not None else -1
+        self._slot = (governor.register(name, progress_ns, reuse=reuse, value=value)
+                      if governor is not None else -1)
         self._peers: dict[str, int] = {}
+        self._consumer: str | None = None
+        self._linked = False
+        self._taken_stamp = value
+        self._taken_count = ALL_FRAMES
         self.progress_ns = progress_ns
 
     @property
     def governed(self) -> bool:
         return self._gov is not None
+
+    @property
+    def budget_ns(self) -> int:
+        """How far the governed clock may run past this participant's progress (0: not governed)."""
+        return self._gov.budget_ns if self._gov is not None else 0
 
     def at(self, progress_ns: int) -> None:
         if progress_ns != self.progress_ns:
@@ -427,6 +522,49 @@ class Participant:
         """Publish a free value for another participant (e.g. a reader's last consumed stamp)."""
         if self._gov is not None:
             self._gov.set_value(self._slot, value)
+
+    def took(self, stamp_ns: int) -> None:
+        """A consumer took a frame stamped ``stamp_ns`` (frames arrive in stamp order)."""
+        if self._gov is None:
+            return
+        if stamp_ns == self._taken_stamp:
+            self._taken_count += 1
+        else:
+            # the first frame after (re)connecting: what was sent before with its stamp is not owed
+            self._taken_count = ALL_FRAMES if self._taken_stamp == UNBOUNDED_NS else 1
+            self._taken_stamp = stamp_ns
+        self._gov.took(self._slot, stamp_ns, self._taken_count)
+
+    def not_reading(self) -> None:
+        """A consumer stopped reading (unplugged, closed): it owes nothing until its next :meth:`took`."""
+        self._taken_stamp = UNBOUNDED_NS
+        self.set_value(UNBOUNDED_NS)
+
+    def feeds(self, consumer: str) -> None:
+        """What this participant sends is read by participant ``consumer`` (linked once it registers)."""
+        self._consumer = consumer
+        self._linked = False
+        self._link()
+
+    def _link(self) -> bool:
+        if self._linked or self._gov is None or self._consumer is None:
+            return self._linked
+        slot = self._gov.find(self._consumer)
+        if slot is not None:
+            self._gov.link(self._slot, slot)
+            self._linked = True
+        return self._linked
+
+    @property
+    def linked(self) -> bool:
+        """The consumer named by :meth:`feeds` has registered (the clock waits for it)."""
+        return self._link()
+
+    def sent(self, stamp_ns: int) -> None:
+        """A frame stamped ``stamp_ns`` goes out now; call it before the frame can reach the consumer."""
+        if self._gov is not None:
+            self._link()
+            self._gov.sent(self._slot, stamp_ns)
 
     def peer_value(self, name: str) -> int | None:
         """The free value published by participant ``name`` (None: it has not registered yet)."""
@@ -450,9 +588,10 @@ class Participant:
         self.close()
 
 
-def participant(clock: Clock, name: str, *, progress_ns: int | None = None, reuse: bool = False) -> Participant:
+def participant(clock: Clock, name: str, *, progress_ns: int | None = None, reuse: bool = False,
+                value: int = 0) -> Participant:
     """A :class:`Participant` of ``clock`` (one that changes nothing unless the clock is governed),
-    starting at ``progress_ns`` (default: the clock's current time)."""
+    starting at ``progress_ns`` (default: the clock's current time) with free value ``value``."""
     gov = getattr(clock, "governor", None)
     start = clock.now_ns() if progress_ns is None else progress_ns
-    return Participant(gov if isinstance(gov, ClockGovernor) else None, name, start, reuse=reuse)
+    return Participant(gov if isinstance(gov, ClockGovernor) else None, name, start, reuse=reuse, value=value)
