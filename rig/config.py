@@ -285,6 +285,9 @@ class CalibrationConfig(_Model):
     steering_ratio_swa_deg: tuple[float, ...] | None = None
     steering_ratio: tuple[Positive, ...] | None = None
     steering_ratio_date: str | None = None
+    swa_zero_offset_deg: float = 0.0
+    """Steering-angle sensor zero offset (SWA_measured = SWA_true + this), from ``rig calibrate-steering-ratio``."""
+    swa_zero_offset_u95_deg: NonNegative | None = None
     optical_zero_deg: Annotated[dict[str, float], AfterValidator(_offsets_within_bounds)] = Field(
         default_factory=dict
     )

@@ -729,6 +729,10 @@ def apply_calibration_file(cal: CalibrationConfig, doc: Mapping[str, Any]) -> tu
         upd.update(steering_ratio_swa_deg=tuple(float(x) for x in s["swa_deg"]),
                    steering_ratio=tuple(float(x) for x in s["ratio"]), steering_ratio_date=s.get("date"))
         applied.append("steering_ratio")
+    z = s.get("sas_zero") if isinstance(s, Mapping) else None
+    if isinstance(z, Mapping) and isinstance(z.get("offset_deg"), int | float):
+        upd.update(swa_zero_offset_deg=float(z["offset_deg"]), swa_zero_offset_u95_deg=z.get("u95_deg"))
+        applied.append("sas_zero")
     imu = res.get("imu")
     if isinstance(imu, Mapping) and isinstance(imu.get("config"), Mapping):
         try:

@@ -711,7 +711,8 @@ def steering_session(
         raise AnalysisError(f"session {inp.path}: fewer than two GNSS epochs in [{start_s}, {stop_s}] s")
     t = gnss.t_s[span]
     ay = inp.signal("lat_accel").at(t, max_gap_s=_ROLE_MAX_GAP_S)
-    swa = inp.signal("swa").at(t, max_gap_s=_ROLE_MAX_GAP_S)
+    # the ratio in force maps the true SWA: remove the sensor's zero offset (calibrate-steering-ratio) first
+    swa = inp.signal("swa").at(t, max_gap_s=_ROLE_MAX_GAP_S) - math.radians(inp.profile.calibration.swa_zero_offset_deg)
     speed = np.where(gnss.valid, gnss.speed_mps, np.nan)[span]
     sm = steering_model(inp.profile)
     # a_y's time stamps lag the motion (sensing filter, CAN latency): measured against the dual-antenna heading

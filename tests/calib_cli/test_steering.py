@@ -165,6 +165,8 @@ def test_sas_zero_in_the_json_text_and_calibration_file(sas_session: tuple[Path,
     rec = read_calibration_file(path)["results"]["steering_ratio"]
     assert rec["sas_zero"]["offset_deg"] == pytest.approx(doc["sas_zero"]["offset_deg"])
     assert rec["sas_zero"]["u95_deg"] == pytest.approx(doc["sas_zero"]["u95_deg"])
+    # and it is in force for the later commands (rig steering reconstruct removes it from the SWA)
+    assert load_inputs(path).profile.calibration.swa_zero_offset_deg == pytest.approx(doc["sas_zero"]["offset_deg"])
     assert run_cli(["calibrate-steering-ratio", str(path)]) == 0
     text = capsys.readouterr().out
     assert f"SAS zero offset {doc['sas_zero']['offset_deg']:+.3f}°" in text and "removed" in text

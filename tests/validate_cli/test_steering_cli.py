@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from rig.analysis.steering import SteeringReconstruction
 from rig.cli.main import app
 from tests.validate_cli.conftest import Recorded
 
@@ -123,3 +125,31 @@ def test_recorded_dlc_reconstruction_to_the_published_figure(recorded: Recorded)
     assert len(doc["peaks_t_s"]) == 4
     assert doc["max_abs_error_deg"] <= 0.3
     assert doc["max_relative_error_at_peaks_percent"] <= 8.0
+
+
+def test_reconstruct_removes_the_calibrated_sas_zero(recorded: Recorded, tmp_path: Path) -> None:
+    """The SWA compared with the reconstruction loses the SAS zero in force (calibrate-steering-ratio records it):
+    the simulated sensor reads 0.8° high, 0.05° of road-wheel angle, and the mean signed error goes with it."""
+    import shutil
+
+    from rig.config import load_session
+    from rig.demo import demo_config_path
+    from rig.sessiondata import update_calibration_file
+    from rig.validate import steering_session
+
+    sim = load_session(demo_config_path()).simulation
+    assert sim is not None
+    for f in recorded.path.parent.glob(recorded.path.name + ".*"):
+        shutil.copy(f, tmp_path / f.name)
+    copy = tmp_path / recorded.path.name
+    before = steering_session(copy).reconstruction
+    update_calibration_file(copy, "steering_ratio", {"sas_zero": {"offset_deg": sim.true_swa_offset_deg,
+                                                                  "u95_deg": 0.06}})
+    after = steering_session(copy).reconstruction
+
+    def bias(r: SteeringReconstruction) -> float:
+        assert r.delta_from_swa is not None
+        return float(np.nanmean(r.delta - r.delta_from_swa))
+
+    shift = math.radians(sim.true_swa_offset_deg) / 16.0  # ≈ the ratio near centre
+    assert bias(after) - bias(before) == pytest.approx(shift, rel=0.1)
