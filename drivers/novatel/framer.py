@@ -36,8 +36,13 @@ could change its verdict: the buffer reaching a length (the rest of a binary or 
 CRC digits of a text frame) and/or a byte from a small set arriving (the ``*`` or line break a text
 frame waits for, a non-hex digit in its CRC field). :meth:`Framer.feed` only appends the bytes and
 returns until then, so a partial frame is rescanned a bounded number of times, not once per chunk;
-an abbreviated log resumes at its last complete line. Frames and counts are the same for any
-chunking, and a frame is returned by the very ``feed`` that completes it.
+an abbreviated log resumes at its last complete line. Between frames the same holds: after a frame
+the next bytes wait until they could hold a complete frame (10 bytes, or a byte that ends one of
+the few frames shorter than that), and bytes that start no frame wait for a sync byte (at most
+512 of them), so a binary log fed one byte at a time is scanned twice: at its header and at its
+end. Frames and counts are the same for any chunking, and a frame is returned by the very
+``feed`` that completes it; bytes that are still held (:attr:`Framer.pending_bytes`) are counted in
+the stats once a scan has classified them.
 """
 
 from __future__ import annotations
@@ -344,7 +349,8 @@ class Framer:
 
     @property
     def pending_bytes(self) -> int:
-        """Bytes held while waiting for the rest of a frame."""
+        """Bytes held and not yet classified: the start of an incomplete frame, or bytes waiting for
+        enough of them to decide anything (a few after a frame, up to 512 of garbage)."""
         return len(self._acc)
 
     # --- scanning -----------------------------------------------------------------------

@@ -397,8 +397,20 @@ def test_flush_completes_an_abbreviated_log_after_a_read_timeout() -> None:
 
 # --- chunking: same result, linear cost ------------------------------------------------------
 
+def _tiny_rtcm3() -> bytes:
+    # The shortest plausible RTCM3 frame: a 2-byte payload holding message number 1005.
+    frame = b"\xd3\x00\x02\x3e\xd0"
+    return frame + crc24q(frame).to_bytes(3, "big")
+
+
+def _tiny_nmea() -> bytes:
+    return b"$AB,*%02X" % xor_checksum(b"AB,")
+
+
 FRAGMENTS = [*(wire for _, wire, _ in MIXED), b"\xaa", b"\xaa\x44\x12", b"#B", b"$G", b"<", b"[", b"\xd3\x00",
-             b"*", b"\r\n", b";", b",", b"<     1\r\n", b"#BESTPOSA,COM1,", b"$GPGGA,", b"*1", b"[COM", b"0\x44"]
+             b"*", b"\r\n", b";", b",", b"<     1\r\n", b"#BESTPOSA,COM1,", b"$GPGGA,", b"*1", b"[COM", b"0\x44",
+             # frames that complete within a few bytes, and a run of garbage longer than the framer holds
+             b"[A]", _tiny_rtcm3(), _tiny_nmea(), (INERT * 3)[:600]]
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -488,3 +500,141 @@ def test_a_long_frame_fed_byte_by_byte_is_parsed_a_bounded_number_of_times(name:
     assert per_unit <= 8, f"{calls[0]} parser calls for {len(stream)} bytes"
     one = Framer()
     assert signature(one.feed(stream) + one.finish()) == signature(frames)
+
+
+# --- held bytes: what a 1-byte feed waits for ------------------------------------------------
+
+
+def _binary_log(i: int) -> bytes:
+    body = sample_bestpos()
+    return encode_binary(make_header(body, week=2300, seconds=10.0 + i, sequence=i % 100), body)
+
+
+#: (wire bytes, kind or None for bytes that are no frame): the frames that complete within 10 bytes
+#: (prompt, response, NMEA, RTCM3), each right after a binary log, after garbage and after a text log's
+#: line end, so each waits in every state a 1-byte feed can leave the framer in.
+TINY = [
+    (_binary_log(0), FrameKind.NOVATEL_BINARY),
+    (b"[A]", FrameKind.PROMPT),
+    (_binary_log(1), FrameKind.NOVATEL_BINARY),
+    (b"<OK\r\n", FrameKind.RESPONSE),
+    (_binary_log(2), FrameKind.NOVATEL_BINARY),
+    (_tiny_rtcm3(), FrameKind.RTCM3),
+    (_binary_log(3), FrameKind.NOVATEL_BINARY),
+    (_tiny_nmea(), FrameKind.NMEA),
+    (b"\r\n", None),
+    (b"[B]", FrameKind.PROMPT),
+    (INERT[:40], None),
+    (_tiny_rtcm3(), FrameKind.RTCM3),
+    (b"\x00x", None),
+    (b"[C]", FrameKind.PROMPT),
+    (_tiny_nmea(), FrameKind.NMEA),
+    (b"\xaa", None),
+    (b"[D]", FrameKind.PROMPT),
+    (b"\xaa\x44", None),
+    (_tiny_rtcm3(), FrameKind.RTCM3),
+    ((INERT * 3)[:700], None),
+    (_binary_log(4), FrameKind.NOVATEL_BINARY),
+    (b"<OK\r\n", FrameKind.RESPONSE),
+    (b"[E]", FrameKind.PROMPT),
+]
+
+
+def test_short_frames_come_out_of_the_byte_that_completes_them_in_every_waiting_state() -> None:
+    """Bytes held after a frame, after garbage or after a partial sync never hold back a short frame."""
+    stream = b"".join(wire for wire, _ in TINY)
+    expected = []
+    offset = 0
+    for wire, kind in TINY:
+        if kind is not None:
+            expected.append((offset + len(wire) - 1, kind))
+        offset += len(wire)
+    framer = Framer()
+    got: list[tuple[int, FrameKind]] = []
+    for i in range(len(stream)):
+        got += [(i, f.kind) for f in framer.feed(stream[i : i + 1])]
+    assert got == expected
+    assert framer.finish() == []
+    one_frames, one_stats = run([stream])
+    assert [f.kind for f in one_frames] == [kind for _, kind in expected]
+    assert framer.stats.to_dict() == one_stats.to_dict()
+    assert framer.stats.bytes_skipped[SkipReason.GARBAGE] == 40 + 2 + 1 + 2 + 700
+
+
+def _count_scans(framer: Framer) -> list[int]:
+    calls = [0]
+    scan = framer._scan
+
+    def counted(final: bool) -> list[Frame]:
+        calls[0] += 1
+        return scan(final)
+
+    framer._scan = counted  # type: ignore[method-assign]
+    return calls
+
+
+def test_binary_logs_fed_byte_by_byte_are_scanned_twice_each() -> None:
+    """At the header (to learn the length) and at the last byte: before, also at each sync byte."""
+    logs = [_binary_log(i) for i in range(50)]
+    framer = Framer()
+    scans = _count_scans(framer)
+    stream = b"".join(logs)
+    frames = []
+    for i in range(len(stream)):
+        frames += framer.feed(stream[i : i + 1])
+    assert signature(frames) == [(FrameKind.NOVATEL_BINARY, log) for log in logs]
+    assert scans[0] == 2 * len(logs)
+
+
+def test_text_frames_fed_byte_by_byte_are_scanned_a_few_times_each() -> None:
+    texts = [wire for kind, wire, _ in MIXED if kind in (FrameKind.NOVATEL_ASCII, FrameKind.NMEA)]
+    stream = b"".join(texts) * 5
+    framer = Framer()
+    scans = _count_scans(framer)
+    frames = []
+    for i in range(len(stream)):
+        frames += framer.feed(stream[i : i + 1])
+    assert len(frames) == 5 * len(texts)
+    # first bytes (an NMEA '$' alone, then with its next byte), the '*', the CRC, the CR LF: 4 for an
+    # ASCII log, 5 for a sentence (one scan per byte would be ~100)
+    assert scans[0] <= 5 * len(frames)
+
+
+def test_garbage_fed_byte_by_byte_is_held_until_a_sync_byte() -> None:
+    """Bytes that start no frame are counted in runs, not scanned one by one; counts stay exact."""
+    garbage = bytes(INERT[i % len(INERT)] for i in range(5000))
+    stream = garbage + _binary_log(0) + garbage
+    framer = Framer()
+    scans = _count_scans(framer)
+    frames = []
+    for i in range(len(stream)):
+        frames += framer.feed(stream[i : i + 1])
+    assert [f.kind for f in frames] == [FrameKind.NOVATEL_BINARY]
+    # per run: one scan per 512 bytes, plus the first (still waiting as after a frame); the log after
+    # garbage: at its sync byte, its third byte, its header and its end (one scan per byte: 10 104)
+    assert scans[0] <= 2 * (5000 // 512 + 2) + 4
+    assert framer.pending_bytes < 512  # the held run is bounded
+    frames += framer.finish()
+    assert framer.stats.bytes_skipped[SkipReason.GARBAGE] == 2 * len(garbage)
+    assert framer.pending_bytes == 0
+
+
+def test_feed_accepts_bytearray_and_memoryview_chunks() -> None:
+    stream = b"".join(wire for wire, _ in TINY)
+    for kind in (bytearray, memoryview):
+        framer = Framer()
+        frames = []
+        for i in range(len(stream)):
+            frames += framer.feed(kind(stream[i : i + 1]))
+        frames += framer.finish()
+        assert signature(frames) == signature(run([stream])[0])
+
+
+def test_a_framer_fed_after_finish_starts_afresh() -> None:
+    framer = Framer()
+    assert framer.feed(b"#BESTPOSA,COM1,0,80.0") == []  # a text log waiting for its '*'
+    framer.finish()
+    got = []
+    for i, byte in enumerate(b"[A]"):
+        got += [(i, f.kind) for f in framer.feed(bytes([byte]))]
+    assert got == [(2, FrameKind.PROMPT)]
