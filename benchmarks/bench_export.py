@@ -6,7 +6,9 @@ eight DAQ channels at 1 kHz, the optical topic at 100 Hz), built once and cached
 ``$TMPDIR/vsc_rig_bench_export/<minutes>min``).
 
 Each export runs in a child process (``python -c``) so that its peak RSS is its own:
-``resource.getrusage(RUSAGE_CHILDREN).ru_maxrss`` after the child ends, and wall time around it.
+``resource.getrusage(RUSAGE_CHILDREN).ru_maxrss`` after the child ends, its CPU time (user + system) from
+the same counters, and wall time around it. The machine's load average is printed before and after each run:
+on a shared machine the wall time is the CPU time stretched by the load.
 
 Run: ``.venv/bin/python benchmarks/bench_export.py [--minutes 60] [--formats parquet,mdf4] [--rebuild]``
 """
@@ -14,6 +16,7 @@ Run: ``.venv/bin/python benchmarks/bench_export.py [--minutes 60] [--formats par
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import shutil
 import subprocess
@@ -58,6 +61,8 @@ def main() -> None:
     for fmt in args.formats.split(","):
         out = Path(tempfile.mkdtemp(prefix=f"bench_export_{fmt}_"))
         try:
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            load0 = os.getloadavg()[0]
             t0 = time.perf_counter()
             res = subprocess.run([sys.executable, "-c", _CHILD, fmt, str(base), str(out)], cwd=REPO,
                                  capture_output=True, text=True, check=False)
@@ -65,10 +70,13 @@ def main() -> None:
             if res.returncode != 0:
                 raise SystemExit(f"{fmt} export failed:\n{res.stderr}")
             rows, nbytes, nfiles = (int(x) for x in res.stdout.split())
-            rss_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0  # Linux: kB
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+            rss_mb = after.ru_maxrss / 1024.0  # Linux: kB; the largest child so far (each format runs alone)
             verdict = "OK" if wall <= TARGET_S and rss_mb <= TARGET_RSS_MB else "OVER TARGET"
-            print(f"{fmt:<8} {wall:7.1f} s wall  peak RSS {rss_mb:7.0f} MB  {rows} rows  {nbytes / 1e6:.0f} MB "
-                  f"in {nfiles} files  (target ≤ {TARGET_S:g} s, ≤ {TARGET_RSS_MB:g} MB: {verdict})")
+            print(f"{fmt:<8} {wall:7.1f} s wall  {cpu:7.1f} s CPU  peak RSS {rss_mb:7.0f} MB  {rows} rows  "
+                  f"{nbytes / 1e6:.0f} MB in {nfiles} files  (target ≤ {TARGET_S:g} s, ≤ {TARGET_RSS_MB:g} MB: "
+                  f"{verdict}; load average {load0:.1f} → {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
         finally:
             shutil.rmtree(out, ignore_errors=True)
 

@@ -28,6 +28,7 @@ import json
 import logging
 import math
 import os
+import struct
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -446,8 +447,10 @@ _TRUTH_UNITS = {
     "road_wheel_angle": "rad", "swa": "rad", "wheel_speed": "m/s", "wheel_load": "N", "ltr": "",
 }
 _WHEELS = ("fl", "fr", "rl", "rr")
-_CHUNK_ROWS = 20_000
-"""JSON messages (or CAN / DAQ blocks × their rows) gathered per topic before a batch is written."""
+_CHUNK_ROWS = 131_072
+"""Rows (JSON messages, CAN frames, DAQ samples) gathered per topic before a batch is converted and written."""
+_CHUNK_BYTES = 8 << 20
+"""Payload bytes gathered per topic before a batch is converted (bounds memory whatever the message size)."""
 
 
 def unit_suffix(unit: str) -> str:
@@ -481,18 +484,27 @@ class GroupChunk:
     columns: dict[str, npt.NDArray[Any]]
     """Column name (unit-suffixed where the quantity has a unit) → values, one per row."""
     units: dict[str, str]
-    nullable_int: frozenset[str] = frozenset()
-    """Integer columns held as object arrays of int or None (JSON integers that may be null)."""
+    nulls: dict[str, npt.NDArray[np.bool_]] = field(default_factory=dict)
+    """Integer columns that may be null (JSON integers left out or null): their values are int64 (0 where
+    null) and this is their null mask (True: null)."""
 
     def __len__(self) -> int:
         return int(self.time_ns.shape[0])
 
+    @property
+    def nullable_int(self) -> frozenset[str]:
+        """Names of the integer columns that may be null."""
+        return frozenset(self.nulls)
+
     def numeric(self, name: str) -> npt.NDArray[Any]:
         """Column ``name`` with nullable integers as float64 (NaN for null)."""
         v = self.columns[name]
-        if name in self.nullable_int:
-            return np.asarray([np.nan if x is None else float(x) for x in v.tolist()], dtype=np.float64)
-        return v
+        mask = self.nulls.get(name)
+        if mask is None:
+            return v
+        out = v.astype(np.float64)
+        out[mask] = np.nan
+        return out
 
 
 def _group_of_topic(topic: str) -> tuple[str, GroupKind] | None:
@@ -540,23 +552,59 @@ def _schema_types(topic: str) -> dict[str, str]:
     return out
 
 
-def _json_chunk(group: str, kind: GroupKind, topic: str, log_time: list[int], host: list[int],
-                data: list[bytes]) -> GroupChunk:
-    rows = [json.loads(d) for d in data]
-    types = _schema_types(topic)
+_ARROW_JSON_TYPES = ("number", "integer", "boolean", "string")
+
+
+def _json_columns_arrow(types: Mapping[str, str], data: Sequence[bytes]
+                        ) -> tuple[dict[str, npt.NDArray[Any]], dict[str, npt.NDArray[np.bool_]]] | None:
+    """The columns of flat JSON messages parsed in bulk by Arrow's JSON reader, typed by the topic's schema;
+    None when a message does not fit that (then the rows are decoded one by one, which says what is wrong)."""
+    import pyarrow as pa
+    import pyarrow.json as pj
+
+    if not types or any(t not in _ARROW_JSON_TYPES for t in types.values()):
+        return None
+    arrow_type = {"number": pa.float64(), "integer": pa.int64(), "boolean": pa.bool_(), "string": pa.string()}
+    schema = pa.schema([(n, arrow_type[t]) for n, t in types.items()])
+    buf = b"\n".join(data)
+    try:
+        tbl = pj.read_json(pa.BufferReader(buf),
+                           read_options=pj.ReadOptions(use_threads=False, block_size=max(len(buf) + 1, 1 << 16)),
+                           parse_options=pj.ParseOptions(explicit_schema=schema, unexpected_field_behavior="ignore"))
+    except (pa.ArrowInvalid, pa.ArrowTypeError):
+        return None
+    if tbl.num_rows != len(data):  # e.g. a pretty-printed message spread over lines
+        return None
+    cols: dict[str, npt.NDArray[Any]] = {}
+    nulls: dict[str, npt.NDArray[np.bool_]] = {}
+    for name, t in types.items():
+        col = tbl.column(name)
+        if t == "number":
+            cols[name] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+        elif t == "integer":
+            nulls[name] = np.asarray(col.is_null().to_numpy(zero_copy_only=False), dtype=bool)
+            cols[name] = np.asarray(col.fill_null(0).to_numpy(zero_copy_only=False), dtype=np.int64)
+        elif t == "boolean":
+            cols[name] = np.asarray(col.fill_null(False).to_numpy(zero_copy_only=False), dtype=bool)
+        else:
+            cols[name] = np.asarray(col.fill_null("").to_numpy(zero_copy_only=False), dtype=object)
+    return cols, nulls
+
+
+def _json_columns_python(types: Mapping[str, str], data: Sequence[bytes]
+                         ) -> tuple[dict[str, npt.NDArray[Any]], dict[str, npt.NDArray[np.bool_]]]:
+    rows: list[dict[str, Any]] = json.loads(b"[" + b",".join(data) + b"]") if data else []
     names = list(types) or sorted({k for r in rows for k in r})
-    cols: dict[str, npt.NDArray[Any]] = {"host_ns": np.asarray(host, dtype=np.int64)}
-    nullable: set[str] = set()
+    cols: dict[str, npt.NDArray[Any]] = {}
+    nulls: dict[str, npt.NDArray[np.bool_]] = {}
     for name in names:
         t = types.get(name, "object")
         vals = [r.get(name) for r in rows]
         if t == "number":
             cols[name] = np.asarray([np.nan if v is None else float(v) for v in vals], dtype=np.float64)
         elif t == "integer":
-            arr = np.empty(len(vals), dtype=object)
-            arr[:] = [None if v is None else int(v) for v in vals]
-            cols[name] = arr
-            nullable.add(name)
+            nulls[name] = np.asarray([v is None for v in vals], dtype=bool)
+            cols[name] = np.asarray([0 if v is None else int(v) for v in vals], dtype=np.int64)
         elif t == "boolean":
             cols[name] = np.asarray([bool(v) for v in vals], dtype=bool)
         elif t == "string":
@@ -564,29 +612,47 @@ def _json_chunk(group: str, kind: GroupKind, topic: str, log_time: list[int], ho
         else:
             cols[name] = np.asarray(["" if v is None else json.dumps(v, separators=(",", ":")) for v in vals],
                                     dtype=object)
+    return cols, nulls
+
+
+def _json_chunk(group: str, kind: GroupKind, topic: str, log_time: Sequence[int], host: Sequence[int],
+                data: Sequence[bytes]) -> GroupChunk:
+    """The messages of a JSON topic as columns (every property of its schema, typed by it)."""
+    types = _schema_types(topic)
+    parsed = _json_columns_arrow(types, data)
+    fields, nulls = parsed if parsed is not None else _json_columns_python(types, data)
+    cols: dict[str, npt.NDArray[Any]] = {"host_ns": np.asarray(host, dtype=np.int64), **fields}
     if kind is GroupKind.EVENTS and "time_ns" in cols:
         cols["event_time_ns"] = cols.pop("time_ns")
-        nullable = {"event_time_ns" if n == "time_ns" else n for n in nullable}
+        if "time_ns" in nulls:
+            nulls["event_time_ns"] = nulls.pop("time_ns")
     units = {k: unit_of_column(k) for k in cols}
-    return GroupChunk(group, kind, np.asarray(log_time, dtype=np.int64), cols, units, frozenset(nullable))
+    return GroupChunk(group, kind, np.asarray(log_time, dtype=np.int64), cols, units, nulls)
 
 
-def _can_chunk(group: str, log_time: list[int], data: list[bytes]) -> GroupChunk:
+def _can_chunk(group: str, log_time: Sequence[int], data: Sequence[bytes]) -> GroupChunk:
     """Every frame of the blocks; a frame's time is its block's log time (the live time base's estimate for
     the block's first frame) plus its offset from that frame on the interface clock (host clock without one)."""
     recs = [T.unpack_can_block(d) for d in data]
     width = max((r.dtype["data"].shape[0] for r in recs), default=8)
-    times: list[npt.NDArray[np.int64]] = []
-    for t0, r in zip(log_time, recs, strict=True):
-        dev = r["device_ts_ns"].astype(np.int64)
-        clock = dev if r.shape[0] and bool(np.all(dev != T.NO_TIME_NS)) else r["host_ts_ns"].astype(np.int64)
-        times.append(t0 + (clock - clock[0]) if r.shape[0] else np.zeros(0, dtype=np.int64))
+    counts = np.asarray([r.shape[0] for r in recs], dtype=np.int64)
     rec = np.concatenate([r if r.dtype["data"].shape[0] == width else _widen(r, width) for r in recs]) if recs \
         else np.zeros(0, dtype=T.can_dtype(8))
+    dev = rec["device_ts_ns"].astype(np.int64)
+    host = rec["host_ts_ns"].astype(np.int64)
+    t = np.zeros(0, dtype=np.int64)
+    if rec.shape[0]:
+        full = counts > 0
+        starts = (np.cumsum(counts) - counts)[full]
+        # a block's clock: the interface's when every frame of the block has an interface time, else the host's
+        dev_block = np.logical_and.reduceat(dev != T.NO_TIME_NS, starts)
+        block = np.repeat(np.arange(int(full.sum())), counts[full])
+        clock = np.where(dev_block[block], dev, host)
+        t = np.repeat(np.asarray(log_time, dtype=np.int64)[full], counts[full]) + (clock - clock[starts][block])
     flags = rec["flags"].astype(np.uint8)
     cols: dict[str, npt.NDArray[Any]] = {
-        "host_ns": rec["host_ts_ns"].astype(np.int64),
-        "device_ns": rec["device_ts_ns"].astype(np.int64),
+        "host_ns": host,
+        "device_ns": dev,
         "can_id": (rec["can_id"] & np.uint32(0x1FFFFFFF)).astype(np.uint32),
         "extended": (flags & T.CanFlag.EXTENDED) != 0,
         "error_frame": (flags & T.CanFlag.ERROR) != 0,
@@ -597,7 +663,6 @@ def _can_chunk(group: str, log_time: list[int], data: list[bytes]) -> GroupChunk
         "len": rec["len"].astype(np.uint8),
         "data": np.ascontiguousarray(rec["data"]),
     }
-    t = np.concatenate(times) if times else np.zeros(0, dtype=np.int64)
     return GroupChunk(group, GroupKind.CAN_FRAMES, t, cols, {k: unit_of_column(k) for k in cols})
 
 
@@ -611,22 +676,77 @@ def _widen(rec: npt.NDArray[Any], width: int) -> npt.NDArray[Any]:
     return out
 
 
-def _daq_chunk(group: str, log_time: list[int], data: list[bytes]) -> GroupChunk:
+@dataclass(frozen=True, slots=True)
+class _DaqLayout:
+    """What the DAQ blocks of one device share: everything but the first sample index (and the samples)."""
+
+    head: bytes
+    """The block's bytes up to its samples, with the first sample index zeroed."""
+    names: tuple[str, ...]
+    scale: npt.NDArray[np.float64]
+    offset: npt.NDArray[np.float64]
+    dtype: np.dtype[Any]
+    n: int
+    rate_hz: float
+
+
+_DAQ_FIRST = slice(16, 24)
+"""Bytes of the first sample index in a DAQ block header (``rig.topics.DAQ_BLOCK_HEADER``)."""
+
+
+def _daq_layout(payload: bytes, known: _DaqLayout | None) -> tuple[_DaqLayout, int]:
+    """The block's layout (``known`` when the block shares it: one bytes comparison) and its first sample index."""
+    first = int.from_bytes(payload[_DAQ_FIRST], "little", signed=True)
+    if known is not None:
+        h = len(known.head)
+        if (len(payload) == h + known.n * len(known.names) * known.dtype.itemsize
+                and payload[:16] == known.head[:16] and payload[24:h] == known.head[24:]):
+            return known, first
+    b = T.unpack_daq_block(payload)
+    n_ch, n = b.samples.shape
+    itemsize = b.samples.dtype.itemsize
+    start = len(payload) - n_ch * n * itemsize
+    head = bytes(payload[:16]) + bytes(8) + bytes(payload[24:start])
+    return _DaqLayout(head, b.channel_names, np.asarray(b.scale or (1.0,) * n_ch, dtype=np.float64),
+                      np.asarray(b.offset or (0.0,) * n_ch, dtype=np.float64), b.samples.dtype, int(n),
+                      b.rate_hz), first
+
+
+def _daq_chunk(group: str, log_time: Sequence[int], data: Sequence[bytes]) -> GroupChunk:
     """Samples of the blocks in volts (float32, lossless for the DAQ's int16 counts and float32 volts); a
-    sample's time is its block's log time plus its index offset at the nominal rate."""
-    blocks = [T.unpack_daq_block(d) for d in data]
-    names = blocks[0].channel_names
-    idx = np.concatenate([np.arange(b.first_sample_index, b.first_sample_index + b.samples.shape[1],
-                                    dtype=np.int64) for b in blocks])
-    t = np.concatenate([t0 + np.round(np.arange(b.samples.shape[1]) * (1e9 / b.rate_hz)).astype(np.int64)
-                        for t0, b in zip(log_time, blocks, strict=True)])
-    volts = np.concatenate([b.volts().astype(np.float32) for b in blocks], axis=1)
-    cols: dict[str, npt.NDArray[Any]] = {"sample_index": idx}
+    sample's time is its block's log time plus its index offset at the nominal rate. Consecutive blocks of
+    one layout are decoded as one array."""
+    runs: list[tuple[_DaqLayout, list[int], list[int], list[bytes]]] = []
+    layout: _DaqLayout | None = None
+    for t0, d in zip(log_time, data, strict=True):
+        lay, first = _daq_layout(d, layout)
+        if lay is not layout or not runs:
+            runs.append((lay, [], [], []))
+            layout = lay
+        runs[-1][1].append(t0)
+        runs[-1][2].append(first)
+        runs[-1][3].append(d)
+    names = runs[0][0].names
+    idx: list[npt.NDArray[np.int64]] = []
+    times: list[npt.NDArray[np.int64]] = []
+    volts: list[npt.NDArray[np.float32]] = []
+    for lay, t0s, firsts, payloads in runs:
+        if lay.names != names:
+            raise ValueError(f"DAQ channels change from {list(names)} to {list(lay.names)} within the session")
+        k, n, h = len(payloads), lay.n, len(lay.head)
+        raw = np.frombuffer(b"".join(p[h:] for p in payloads), dtype=lay.dtype).reshape(k, len(names), n)
+        v = raw.transpose(1, 0, 2).reshape(len(names), k * n).astype(np.float64)
+        volts.append((v * lay.scale[:, None] + lay.offset[:, None]).astype(np.float32))
+        step = np.round(np.arange(n) * (1e9 / lay.rate_hz)).astype(np.int64)
+        times.append((np.asarray(t0s, dtype=np.int64)[:, None] + step[None, :]).reshape(-1))
+        idx.append((np.asarray(firsts, dtype=np.int64)[:, None] + np.arange(n, dtype=np.int64)[None, :]).reshape(-1))
+    vol = np.concatenate(volts, axis=1)
+    cols: dict[str, npt.NDArray[Any]] = {"sample_index": np.concatenate(idx)}
     units = {"sample_index": ""}
-    for i, n in enumerate(names):
-        cols[f"{n}_V"] = volts[i]
-        units[f"{n}_V"] = "V"
-    return GroupChunk(group, GroupKind.DAQ, t, cols, units)
+    for i, name in enumerate(names):
+        cols[f"{name}_V"] = vol[i]
+        units[f"{name}_V"] = "V"
+    return GroupChunk(group, GroupKind.DAQ, np.concatenate(times), cols, units)
 
 
 def _truth_chunk(data: list[bytes]) -> GroupChunk:
@@ -737,6 +857,7 @@ class _Pending:
     host: list[int] = field(default_factory=list)
     data: list[bytes] = field(default_factory=list)
     rows: int = 0
+    nbytes: int = 0
 
 
 @dataclass(slots=True)
@@ -766,7 +887,7 @@ def open_stream(path: Path | str) -> SessionStream:
         try:
             with open(p, "rb") as f:
                 summary = make_reader(f).get_summary()
-        except Exception:  # an unfinished part has no summary: its span is learnt while reading
+        except Exception:  # an unfinished or damaged part has no usable summary: its span is learnt while reading
             summary = None
         if summary is not None and summary.statistics is not None and summary.statistics.message_count:
             s = summary.statistics
@@ -778,6 +899,142 @@ def open_stream(path: Path | str) -> SessionStream:
     return st
 
 
+# --- reading a part chunk by chunk ----------------------------------------------------------------
+
+_REC = struct.Struct("<BQ")
+_MSG = struct.Struct("<HIQQ")
+_CHUNK_HEAD = struct.Struct("<QQQII")
+_OP_MESSAGE = 0x05
+_OP_CHUNK = 0x06
+
+
+@dataclass(frozen=True, slots=True)
+class _ChunkRef:
+    """Where a chunk lies in a part, and what its index (or the scan that found it) says it holds."""
+
+    offset: int
+    length: int
+    compression: str
+    uncompressed_size: int
+    end_ns: int
+
+
+@dataclass(slots=True)
+class _PartPlan:
+    topics: dict[int, str]
+    """Channel id → topic."""
+    chunks: list[_ChunkRef]
+    scan: PartScan | None
+    """The scanner's result when the part's summary was not usable (an unfinished or damaged part)."""
+
+
+def _plan_part(part: Path) -> _PartPlan:
+    """The part's channels and chunks from its summary when that is intact (its CRC checked against the footer),
+    else from a scan of the whole part (:func:`rig.recorder.reader.scan_part`, which skips damaged chunks)."""
+    import mmap
+
+    from rig.recorder.reader import _read_summary
+
+    try:
+        with open(part, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            summary: Any = None
+            problem: str | None = "empty part"
+            if size:
+                with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+                    summary, problem = _read_summary(mm, True)
+    except OSError as exc:
+        raise SessionFileError(f"{part}: cannot open session part: {exc}") from exc
+    if summary is not None and problem is None and (summary.chunk_indexes or summary.channels):
+        chunks = [_ChunkRef(ci.chunk_start_offset, ci.chunk_length, ci.compression, ci.uncompressed_size,
+                            ci.message_end_time) for ci in summary.chunk_indexes]
+        return _PartPlan({cid: ch.topic for cid, ch in summary.channels.items()}, chunks, None)
+    scan = scan_part(part, collect=False)
+    chunks = [_ChunkRef(c.offset, c.length, c.compression, c.uncompressed_size, c.message_end_time)
+              for c in scan.chunks]
+    return _PartPlan({cid: ch.topic for cid, ch in scan.channels.items()}, chunks, scan)
+
+
+class _BadChunkError(Exception):
+    """A chunk that cannot be read as its index says (damage): skipped, and the part is scanned to describe it."""
+
+
+def _read_chunk(fd: int, ref: _ChunkRef) -> tuple[tuple[int, int], bytes]:
+    """The chunk's header times and records, decompressed and checked (framing, sizes, CRC); raises
+    _BadChunkError."""
+    import zlib
+
+    from rig.recorder.reader import CorruptChunkError, decompress_chunk
+
+    where = f"chunk at offset {ref.offset}"
+    raw = os.pread(fd, ref.length, ref.offset)
+    try:
+        op, ln = _REC.unpack_from(raw, 0)
+        if op != _OP_CHUNK or len(raw) != ref.length or 9 + ln != ref.length:
+            raise _BadChunkError(f"{where}: not the chunk record its index points at")
+        t0, t1, usize, ucrc, clen = _CHUNK_HEAD.unpack_from(raw, 9)
+        comp = raw[41 : 41 + clen].decode()
+        (rlen,) = struct.unpack_from("<Q", raw, 41 + clen)
+        rstart = 49 + clen
+        if rstart + rlen != len(raw) or usize != ref.uncompressed_size or comp != ref.compression:
+            raise _BadChunkError(f"{where}: header disagrees with its index")
+        data = decompress_chunk(comp, raw[rstart:], usize, where)
+    except (struct.error, UnicodeDecodeError, CorruptChunkError) as exc:
+        raise _BadChunkError(f"{where}: {exc}") from exc
+    if len(data) != usize or (ucrc and zlib.crc32(data) != ucrc):
+        raise _BadChunkError(f"{where}: CRC or size mismatch (damaged data)")
+    return (int(t0), int(t1)), data
+
+
+def _chunk_messages(data: bytes, chunk_head: tuple[int, int], wanted: Mapping[int, object]
+                    ) -> list[tuple[int, int, int, bytes]]:
+    """(channel id, log time, publish time, payload) of the chunk's messages on ``wanted`` channels; the
+    chunk's header times must match its messages' (as the scanner checks). Raises _BadChunkError."""
+    out: list[tuple[int, int, int, bytes]] = []
+    end = len(data)
+    q = 0
+    lo: int | None = None
+    hi: int | None = None
+    unpack_rec = _REC.unpack_from
+    unpack_msg = _MSG.unpack_from
+    try:
+        while q < end:
+            op, ln = unpack_rec(data, q)
+            nxt = q + 9 + ln
+            if nxt > end:
+                raise _BadChunkError(f"record of {ln} bytes at {q} runs past the end of the chunk")
+            if op == _OP_MESSAGE:
+                cid, _seq, lt, pt = unpack_msg(data, q + 9)
+                if lo is None or lt < lo:
+                    lo = lt
+                if hi is None or lt > hi:
+                    hi = lt
+                if cid in wanted:
+                    out.append((cid, lt, pt, data[q + 31 : nxt]))
+            q = nxt
+    except struct.error as exc:
+        raise _BadChunkError(f"records do not parse: {exc}") from exc
+    if ((lo, hi) if lo is not None else (0, 0)) != chunk_head:
+        raise _BadChunkError(f"header times {chunk_head} disagree with its messages' {lo}..{hi}")
+    return out
+
+
+def _block_rows(kind: GroupKind, payload: bytes) -> int:
+    """Rows a message makes: frames of a CAN block, samples of a DAQ block (from their headers), else 1."""
+    if kind is GroupKind.CAN_FRAMES and len(payload) >= 12:
+        return max(1, int.from_bytes(payload[8:12], "little"))
+    if kind is GroupKind.DAQ and len(payload) >= 16:
+        return max(1, int.from_bytes(payload[12:16], "little"))
+    return 1
+
+
+def _damage_notes(where: str, scan: PartScan) -> list[str]:
+    notes = [f"{where}: {d.describe()}; every intact chunk exported" for d in scan.damage]
+    if scan.truncation is not None:
+        notes.append(f"{where}: {scan.truncation}; exported up to its last complete record")
+    return notes
+
+
 def iter_groups(
     stream: SessionStream,
     *,
@@ -785,18 +1042,22 @@ def iter_groups(
     roles: bool = True,
     progress: Callable[[int], None] | None = None,
     chunk_rows: int = _CHUNK_ROWS,
+    chunk_bytes: int = _CHUNK_BYTES,
 ) -> Iterator[GroupChunk]:
     """The session's topic groups as :class:`GroupChunk` batches, streamed chunk by chunk through every part.
 
-    Memory holds one MCAP chunk and, per topic, at most ``chunk_rows`` rows waiting to be converted.
-    ``topics``: keep only groups whose name or topic matches one of these (``fnmatch`` patterns, e.g.
-    ``gnss_*`` or ``/can/*``). With ``roles`` each CAN bus's frames are also decoded into its rig roles
-    with the session's attached DBC and role map (a bus without them is noted in ``stream.warnings``).
-    ``progress(log_time_ns)`` is called as the reading advances.
+    Memory holds one MCAP chunk and, per topic, at most ``chunk_rows`` rows (a CAN frame, a DAQ sample, a
+    JSON message) or ``chunk_bytes`` of payload waiting to be converted. Only the channels exported are
+    taken out of a chunk (raw byte streams and LocationFix are skipped unread). ``topics``: keep only groups
+    whose name or topic matches one of these (``fnmatch`` patterns, e.g. ``gnss_*`` or ``/can/*``). With
+    ``roles`` each CAN bus's frames are also decoded into its rig roles with the session's attached DBC and
+    role map (a bus without them is noted in ``stream.warnings``). ``progress(log_time_ns)`` is called as
+    the reading advances.
+
+    A damaged chunk (or an unfinished part) does not stop the export: every intact chunk is read and
+    ``stream.warnings`` names the damage as the session reader describes it (offset, chunk, time span, topics).
     """
     from fnmatch import fnmatchcase
-
-    from mcap.reader import make_reader
 
     def wanted(topic: str) -> tuple[str, GroupKind] | None:
         g = _group_of_topic(topic)
@@ -807,16 +1068,16 @@ def iter_groups(
         return g
 
     role_dec: dict[str, _RoleDecoding | None] = {}
-    pending: dict[str, _Pending] = {}
 
     def convert(p: _Pending) -> Iterator[GroupChunk]:
         if not p.data:
             return
         lt, host, data = p.log_time, p.host, p.data
-        p.log_time, p.host, p.data, p.rows = [], [], [], 0
+        p.log_time, p.host, p.data, p.rows, p.nbytes = [], [], [], 0, 0
         try:
             if p.kind is GroupKind.CAN_FRAMES:
                 ch = _can_chunk(p.group, lt, data)
+                del data
                 yield ch
                 bus = T.spec_for_topic(p.topic)[1]["bus"]
                 if roles:
@@ -840,42 +1101,63 @@ def iter_groups(
         except (ValueError, KeyError, TypeError) as exc:
             raise SessionFileError(f"{stream.path}: topic {p.topic}: undecodable message ({exc})") from exc
 
+    by_topic: dict[str, _Pending | None] = {}
     for i, part in enumerate(stream.parts):
         where = f"{part} (part {i + 1} of {len(stream.parts)})"
+        plan = _plan_part(part)
+        if plan.scan is not None:
+            stream.warnings.extend(_damage_notes(where, plan.scan))
+        targets: dict[int, _Pending] = {}
+        for cid, topic in plan.topics.items():
+            if topic not in by_topic:
+                g = wanted(topic)
+                by_topic[topic] = None if g is None else _Pending(topic, g[0], g[1])
+            tgt = by_topic[topic]
+            if tgt is not None:
+                targets[cid] = tgt
+        bad: list[str] = []
         try:
             f = open(part, "rb")  # noqa: SIM115 - closed by the with statement
         except OSError as exc:
             raise SessionFileError(f"{where}: cannot open session part: {exc}") from exc
         with f:
-            reader = make_reader(f)
-            try:
-                it = reader.iter_messages(log_time_order=False)
-                for _schema, channel, message in it:
-                    p = pending.get(channel.topic)
-                    if p is None:
-                        g = wanted(channel.topic)
-                        if g is None:
-                            continue
-                        p = pending[channel.topic] = _Pending(channel.topic, g[0], g[1])
-                    p.log_time.append(message.log_time)
-                    p.host.append(message.publish_time)
-                    p.data.append(message.data)
-                    p.rows += 1 if p.kind not in (GroupKind.CAN_FRAMES, GroupKind.DAQ) else 100
-                    if p.rows >= chunk_rows:
-                        if progress is not None:
-                            progress(message.log_time)
-                        yield from convert(p)
-            except SessionFileError:
-                raise
-            except Exception as exc:  # mcap raises many types for a cut or damaged file
-                if i == len(stream.parts) - 1:
-                    stream.warnings.append(f"{where}: {exc}; exported up to the damage (rig recover salvages "
-                                           "every intact chunk)")
-                    log.warning("%s", stream.warnings[-1])
-                else:
-                    raise SessionFileError(f"{where}: {exc} (rig recover salvages every intact chunk)") from exc
-    for p in pending.values():
-        yield from convert(p)
+            fd = f.fileno()
+            for ref in plan.chunks:
+                if not targets:
+                    break
+                try:
+                    head, data = _read_chunk(fd, ref)
+                    msgs = _chunk_messages(data, head, targets)
+                except _BadChunkError as exc:
+                    bad.append(str(exc))
+                    continue
+                del data
+                for cid, lt, pt, payload in msgs:
+                    pend = targets[cid]
+                    pend.log_time.append(lt)
+                    pend.host.append(pt)
+                    pend.data.append(payload)
+                    pend.rows += _block_rows(pend.kind, payload)
+                    pend.nbytes += len(payload)
+                    if pend.rows >= chunk_rows or pend.nbytes >= chunk_bytes:
+                        yield from convert(pend)
+                del msgs
+                if progress is not None:
+                    progress(ref.end_ns)
+        if bad:
+            # the summary looked intact but a chunk is not: the scanner describes the damage as rig info does
+            notes = _damage_notes(where, scan_part(part, collect=False)) or [
+                f"{where}: damaged {b}; skipped, every intact chunk exported" for b in bad]
+            stream.warnings.extend(notes)
+        elif plan.scan is not None:
+            notes = _damage_notes(where, plan.scan)
+        else:
+            notes = []
+        for note in notes:
+            log.warning("%s", note)
+    for rest in by_topic.values():
+        if rest is not None:
+            yield from convert(rest)
     if progress is not None:
         progress(stream.end_ns)
 
@@ -887,8 +1169,9 @@ def _arrow_column(chunk: GroupChunk, name: str) -> Any:
     import pyarrow as pa
 
     v = chunk.columns[name]
-    if name in chunk.nullable_int:
-        return pa.array(v.tolist(), pa.int64())
+    mask = chunk.nulls.get(name)
+    if mask is not None:
+        return pa.array(v, pa.int64(), mask=mask)
     if v.dtype == object:
         return pa.array(v.tolist(), pa.string())
     if v.ndim == 2:  # CAN payloads: variable-length binary, trimmed to each frame's length
@@ -915,6 +1198,16 @@ def _arrow_table(chunk: GroupChunk, start_ns: int) -> Any:
         fields.append(pa.field(name, arr.type, metadata=meta))
         arrays.append(arr)
     return pa.Table.from_arrays(arrays, schema=pa.schema(fields))
+
+
+def _parquet_options(schema: Any) -> dict[str, Any]:
+    """Writer options: zstd; dictionaries only for text (tried on every float column they cost three times the
+    CPU and grow the file); integer columns delta-encoded (times and counters: a third of the size)."""
+    import pyarrow as pa
+
+    text = [f.name for f in schema if pa.types.is_string(f.type)]
+    ints = {f.name: "DELTA_BINARY_PACKED" for f in schema if pa.types.is_int64(f.type)}
+    return {"compression": "zstd", "compression_level": 1, "use_dictionary": text, "column_encoding": ints}
 
 
 def _group_path(out: Path, group: str, session: str) -> Path:
@@ -959,7 +1252,7 @@ def export_parquet(
                 schema = table.schema.with_metadata({
                     "vsc_rig.session": stream.name, "vsc_rig.group": chunk.group, "vsc_rig.kind": chunk.kind.value,
                     "vsc_rig.session_start_ns": str(stream.start_ns)})
-                w = (pq.ParquetWriter(_partial(final), schema, compression="zstd", compression_level=1), final, schema)
+                w = (pq.ParquetWriter(_partial(final), schema, **_parquet_options(schema)), final, schema)
                 writers[chunk.group] = w
             try:
                 w[0].write_table(pa.Table.from_arrays(table.columns, schema=w[2]))
