@@ -274,9 +274,9 @@ def rollover(
 def reconstruct_cmd(
     session: Annotated[Path, typer.Argument(help=_SESSION_HELP)],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
-    min_speed_kmh: Annotated[float, typer.Option("--min-speed", help="Lowest speed used [km/h].")] = 18.0,
-    start: Annotated[float | None, typer.Option("--start", help="Only from this time [s, as rig validate].")] = None,
-    stop: Annotated[float | None, typer.Option("--stop", help="Only up to this time [s, as rig validate].")] = None,
+    min_speed_kmh: Annotated[float, typer.Option("--min-speed", help="Lowest speed used (km/h).")] = 18.0,
+    start: Annotated[float | None, typer.Option("--start", help="Only from this time (s, as rig validate).")] = None,
+    stop: Annotated[float | None, typer.Option("--stop", help="Only up to this time (s, as rig validate).")] = None,
 ) -> None:
     """Front road-wheel angle from GNSS speed and CAN lateral acceleration, against SWA / steering ratio."""
     from rig.validate import steering_session

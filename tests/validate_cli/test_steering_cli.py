@@ -101,6 +101,10 @@ def test_help_shows_the_units_and_per_tyre_wording() -> None:
                    "speeds (km/h"):
         assert phrase in text, phrase
     assert " ." not in text  # no unit swallowed before a full stop
+    res = runner.invoke(app, ["steering", "reconstruct", "--help"], env={"COLUMNS": "300", "NO_COLOR": "1"})
+    text = " ".join(res.output.replace("│", " ").split())
+    for phrase in ("Lowest speed used (km/h)", "Only from this time (s, as rig validate)"):
+        assert phrase in text, phrase
 
 
 def test_recorded_dlc_reconstruction_to_the_published_figure(recorded: Recorded) -> None:
