@@ -495,23 +495,29 @@ class RecordSession:
             return late, {}, {}, {}
         end = max(t.last_log_ns for t in periodic if t.last_log_ns is not None)
         start = min(t.first_log_ns for t in periodic if t.first_log_ns is not None)
+        # per source: the early ends and the stalls its device did not report itself, merged into spans
+        spans: dict[tuple[str, str], list[tuple[int, int, str]]] = {}
         for t in periodic:
             assert t.last_log_ns is not None
             stream = stream_of_topic(t.topic) or t.source
             if ended_early(t.last_log_ns, t.period_ns, end):
                 late[t.topic] = (end - t.last_log_ns) / NS_PER_S
                 gaps.append(Gap(stream, t.topic, "ended_early", t.last_log_ns, end))
+                spans.setdefault((t.source, "ended_early"), []).append((t.last_log_ns, end, t.topic))
+            for a, b in t.stall_spans:
+                gaps.append(Gap(stream, t.topic, "stall", a, b))
+                if not any(a < gb and b > ga for ga, gb in t.source_gaps):
+                    spans.setdefault((t.source, "stall"), []).append((a, b, t.topic))
+        for (source, kind), items in spans.items():
+            for a, b, topics in _merge_spans(items):
+                what = "stalled" if kind == "stall" else "ended before the session"
                 self.recorder.event(
-                    EventKind.GAP, f"{t.topic} ended {late[t.topic]:.3f} s before the session", source=t.source,
-                    severity=Severity.WARNING, log_time_ns=t.last_log_ns, start_ns=t.last_log_ns, end_ns=end,
-                    topic=t.topic, gap="ended_early",
+                    EventKind.GAP, f"{', '.join(topics)} {what}: no messages for {(b - a) / NS_PER_S:.3f} s",
+                    source=source, severity=Severity.WARNING, log_time_ns=a, start_ns=a, end_ns=b,
+                    topics=topics, gap=kind,
                 )
         stalled = {t.topic: (t.stalls, t.stalled_ns / NS_PER_S) for t in timings if t.stalls}
         clamped = {t.topic: (t.clamped, t.clamp_max_ns / 1e6) for t in timings if t.clamped}
-        # stalls are gap events already (written when the channel resumed); the verdicts want their share
-        for t in timings:
-            if t.stalls:
-                gaps.append(Gap(stream_of_topic(t.topic) or t.source, t.topic, "stall", 0, t.stalled_ns))
         tb = self.timebase
         ref = tb.reference_receiver
         host_err: dict[str, float] = {}
@@ -662,6 +668,18 @@ class RecordSession:
         figures.update(self.ltr.figures())
         if figures:
             self.board.vehicle(**figures)
+
+def _merge_spans(items: Sequence[tuple[int, int, str]]) -> list[tuple[int, int, list[str]]]:
+    """Overlapping (start, end, topic) spans of one source merged, with their topics."""
+    out: list[tuple[int, int, list[str]]] = []
+    for a, b, topic in sorted(items):
+        if out and a <= out[-1][1]:
+            pa, pb, topics = out[-1]
+            out[-1] = (pa, max(pb, b), topics if topic in topics else [*topics, topic])
+        else:
+            out.append((a, b, [topic]))
+    return out
+
 
 def _step(errors: list[str], what: str, fn: Callable[[], object]) -> None:
     """Run one stop step; a failure is noted and the next steps still run."""

@@ -19,8 +19,10 @@ second of log time, with the count and the largest step back). ``/rig/events`` i
 event's ``log_time`` *is* the time it is about (an operator mark's key press, a gap's start, the
 first drop of an overflow), which often comes after later ones were written; moving it would
 falsify it, and readers sort events by time. The same pass learns each periodic channel's
-period (median of its recent intervals) and records a silence longer than
-:func:`rig.quality.stall_threshold_ns` of it as a ``gap`` event with its span (a stall).
+period (median of its recent intervals) and keeps a silence longer than
+:func:`rig.quality.stall_threshold_ns` of it as a stall with its span (:attr:`ChannelTiming.stall_spans`);
+the recording session writes the stalls its devices did not report themselves as ``gap`` events
+(one per device and span, :mod:`rig.session`).
 """
 
 from __future__ import annotations
@@ -55,6 +57,8 @@ log = logging.getLogger(__name__)
 _U64 = 2**64 - 1
 _CLAMP_EVENT_EVERY_NS = 1_000_000_000
 """At most one clamp event per channel and second of log time (the count covers the clamps between)."""
+_MAX_SPANS = 10_000
+"""Stall spans kept per channel (the count and total go on beyond)."""
 _PERIOD_SAMPLES = 64
 """Intervals a channel's period estimate is the median of (re-estimated every that many)."""
 _NOT_PERIODIC_SUFFIXES = ("/markpos", "/marktime", "/raw")
@@ -86,6 +90,10 @@ class ChannelTiming:
     """Silences longer than :func:`rig.quality.stall_threshold_ns` of the period (each a gap event)."""
     stalled_ns: int
     """Their total length."""
+    stall_spans: tuple[tuple[int, int], ...] = ()
+    """(start, end) log times of the stalls (the first :data:`_MAX_SPANS`)."""
+    source_gaps: tuple[tuple[int, int], ...] = ()
+    """Gaps the source reported itself (:meth:`Source.gap`: a disconnect, a bus gap …)."""
 
     def late_ns(self, now_log_ns: int) -> int | None:
         """How long the channel has been silent at ``now_log_ns`` if that is a stall (else None)."""
@@ -118,7 +126,7 @@ class _Channel:
 
     __slots__ = ("clamp_event_ns", "clamp_max", "clamp_reported", "clamped", "epoch", "first_log", "intervals",
                  "is_json", "last_log", "lock", "mcap_id", "n", "period", "periodic", "schema", "seq", "source",
-                 "spec", "stalled_ns", "stalls", "topic")
+                 "spec", "stall_spans", "stalled_ns", "stalls", "topic")
 
     def __init__(self, topic: str, spec: TopicSpec) -> None:
         self.topic = topic
@@ -145,14 +153,16 @@ class _Channel:
         self.period = 0.0
         self.stalls = 0
         self.stalled_ns = 0
+        self.stall_spans: list[tuple[int, int]] = []
 
-    def timing(self) -> ChannelTiming:
+    def timing(self, source_gaps: tuple[tuple[int, int], ...] = ()) -> ChannelTiming:
         with self.lock:
             return ChannelTiming(
                 topic=self.topic, source=self.source, messages=self.n,
                 first_log_ns=self.first_log if self.n else None, last_log_ns=self.last_log if self.n else None,
                 period_ns=self.period if self.periodic and self.period > 0 else None,
                 clamped=self.clamped, clamp_max_ns=self.clamp_max, stalls=self.stalls, stalled_ns=self.stalled_ns,
+                stall_spans=tuple(self.stall_spans), source_gaps=source_gaps,
             )
 
 
@@ -212,6 +222,7 @@ class Source:
         "_accepted",
         "_dropped_total",
         "_drops",
+        "_gaps",
         "_hub",
         "_lock",
         "_maxsize",
@@ -234,6 +245,7 @@ class Source:
         self._written = 0
         self._rejected = 0
         self._dropped_total = 0
+        self._gaps: list[tuple[int, int]] = []
 
     def put(self, topic: str, log_time_ns: int, publish_time_ns: int, payload: bytes | Mapping[str, Any]) -> bool:
         """Queue one message; never blocks.
@@ -277,7 +289,6 @@ class Source:
             self._count_drop(topic, log_time_ns)
             return False
         clamp: tuple[int, int, int] | None = None
-        stall: tuple[int, int, float] | None = None
         with ch.lock:
             last = ch.last_log
             if log_time_ns < last and topic != TOPIC_EVENTS:
@@ -297,7 +308,8 @@ class Source:
                     if ch.period > 0 and dt > stall_threshold_ns(ch.period):
                         ch.stalls += 1
                         ch.stalled_ns += dt
-                        stall = (last, log_time_ns, ch.period)
+                        if len(ch.stall_spans) < _MAX_SPANS:
+                            ch.stall_spans.append((last, log_time_ns))
                     elif dt > 0:
                         iv = ch.intervals
                         iv.append(dt)
@@ -316,8 +328,6 @@ class Source:
             hub.wake.set()
         if clamp is not None:
             self._report_clamp(topic, *clamp)
-        if stall is not None:
-            self._report_stall(topic, *stall)
         return True
 
     def event(
@@ -344,6 +354,9 @@ class Source:
 
     def gap(self, start_ns: int, end_ns: int, text: str, **details: Any) -> bool:
         """Record a gap in this source's data between two times on the common time base."""
+        with self._lock:
+            if len(self._gaps) < _MAX_SPANS:
+                self._gaps.append((int(start_ns), int(end_ns)))
         return self.event(
             EventKind.GAP, text, severity=Severity.WARNING, log_time_ns=start_ns, start_ns=start_ns, end_ns=end_ns,
             **details,
@@ -381,12 +394,6 @@ class Source:
             {"topic": topic, "clamped": count, "step_back_ns": back_ns},
         ), at_ns)
 
-    def _report_stall(self, topic: str, start_ns: int, end_ns: int, period_ns: float) -> None:
-        self.gap(start_ns, end_ns,
-                 f"{topic} stalled: no message for {(end_ns - start_ns) / 1e9:.3f} s "
-                 f"(period {period_ns / 1e6:.3g} ms)",
-                 topic=topic, gap="stall", period_ns=period_ns)
-
     def _count_drop(self, topic: str, log_time_ns: int) -> None:
         with self._lock:
             w = self._drops
@@ -407,5 +414,13 @@ class Source:
 
 
 def channel_timings(hub: _Hub) -> list[ChannelTiming]:
-    """The log-time record of every channel of a recording (topic order)."""
-    return [hub.channels[t].timing() for t in sorted(hub.channels)]
+    """The log-time record of every channel of a recording (topic order), with the gaps its source reported."""
+    gaps: dict[str, tuple[tuple[int, int], ...]] = {}
+    for src in hub.sources:
+        with src._lock:
+            gaps[src.name] = tuple(src._gaps)
+    out = []
+    for t in sorted(hub.channels):
+        ch = hub.channels[t]
+        out.append(ch.timing(gaps.get(ch.source, ())))
+    return out

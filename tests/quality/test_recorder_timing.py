@@ -67,7 +67,7 @@ def test_events_keep_the_time_they_are_about(tmp_path: Path) -> None:
     assert timings[T.TOPIC_EVENTS].clamped == 0
 
 
-def test_a_stall_longer_than_k_periods_is_a_gap_event_with_its_span(tmp_path: Path) -> None:
+def test_a_stall_longer_than_k_periods_is_kept_with_its_span(tmp_path: Path) -> None:
     clock = ManualClock()
     with Recorder(tmp_path, "run", {}, options=options(), clock=clock) as rec:
         src = rec.source("rover_a")
@@ -75,13 +75,12 @@ def test_a_stall_longer_than_k_periods_is_a_gap_event_with_its_span(tmp_path: Pa
         t += [t[-1] + 2 * NS + k * 50 * MS for k in range(20)]    # then 2 s of silence, then on
         for k, tk in enumerate(t):
             src.put(POS, tk, T0 + k, _pos(k))
+        src.gap(T0 - 10 * NS, T0 - 9 * NS, "port lost")           # what the device reported itself
         (timing,) = [c for c in rec.channel_timings() if c.topic == POS]
         assert timing.period_ns == 50 * MS
         # while silent, the channel is late; a live dashboard asks this
         assert timing.late_ns(t[-1] + NS) == NS
         assert timing.late_ns(t[-1] + 100 * MS) is None
-    _times, events = _read(tmp_path / "run")
-    (gap,) = [e for _t, e in events if e.kind is EventKind.GAP]
-    assert (gap.start_ns, gap.end_ns) == (t[99], t[100])  # old code: no event
-    assert gap.details["topic"] == POS and gap.details["gap"] == "stall" and gap.source == "rover_a"
     assert (timing.stalls, timing.stalled_ns) == (1, t[100] - t[99])
+    assert timing.stall_spans == ((t[99], t[100]),)  # old code: nothing
+    assert timing.source == "rover_a" and timing.source_gaps == ((T0 - 10 * NS, T0 - 9 * NS),)

@@ -20,6 +20,7 @@ from sim_devices.gnss import RtkParams
 from sim_devices.vehicle.scenarios import make_scenario
 from tests.calib_cli.synth import run_cli
 
+NS = 1_000_000_000
 READ_DELAY_S = 0.004
 """Each frame the CAN reader takes costs this much more wall time: ~250 frames/s, fewer than the ECU sends."""
 
@@ -92,9 +93,11 @@ def test_the_file_holds_the_early_end_as_a_gap_event(starved: tuple[Path, Sessio
 
     ds = load_session(starved[0])
     gaps = [e for _t, e in ds.events if e.kind is EventKind.GAP and e.details.get("gap") == "ended_early"]
-    assert any(str(e.details["topic"]).startswith("/can/vsc/") for e in gaps), [e.text for e in gaps]
-    for e in gaps:
-        assert e.start_ns is not None and e.end_ns is not None and e.end_ns > e.start_ns
+    can = [e for e in gaps if any(str(t).startswith("/can/vsc/") for t in e.details["topics"])]
+    assert len(can) == 1, [e.text for e in gaps]  # one event per device and span, naming its topics
+    (ev,) = can
+    assert ev.source == "can.vsc" and "/can/vsc/roles" in ev.details["topics"]
+    assert ev.start_ns is not None and ev.end_ns is not None and ev.end_ns - ev.start_ns > NS
 
 
 def test_rig_validate_exits_2_naming_the_can_stream(
