@@ -165,7 +165,7 @@ _RECORDER_PER_PART_KEYS = frozenset({"part_index", "part_file", "previous_part",
 _DEVICE_KINDS = {"receiver": "gnss", "bus": "can", "device": "daq", "sensor": "optical"}
 
 _REC = struct.Struct("<BQ")
-_MSG_INDEX_HEAD = struct.Struct("<HI")
+_MSG_INDEX_REC = struct.Struct("<BQHI")
 _MSG_HEAD = struct.Struct("<HIQQ")
 _CHUNK_HEAD = struct.Struct("<QQQI")
 _OP_CHUNK = 0x06
@@ -554,7 +554,8 @@ _OP_METADATA_INDEX = 0x0D
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
 _U64 = struct.Struct("<Q")
-_CHUNK_INDEX_HEAD = struct.Struct("<QQQQ")
+_CHUNK_INDEX_HEAD = struct.Struct("<QQQQI")
+_CHUNK_INDEX_MID = struct.Struct("<QI")
 _STATISTICS_HEAD = struct.Struct("<QHIIIIQQ")
 _ATTACHMENT_INDEX_HEAD = struct.Struct("<QQQQQ")
 _CHUNK_INDEX_HEAD_TAIL = struct.Struct("<QQ")
@@ -625,12 +626,22 @@ def _read_summary(mm: mmap.mmap) -> _Summary | None:
         if body_end > footer:
             raise ValueError(f"summary record at {pos} ({ln} bytes) runs into the footer")
         b = _Body(mm, pos + 9, body_end)
-        if op == _OP_CHUNK_INDEX:
-            t0, t1, chunk_start, chunk_len = b.take(_CHUNK_INDEX_HEAD)
-            offsets = b.map_u16_u64()
-            (mi_len,) = b.take(_U64)
-            compression = b.text()
-            csize, usize = b.take(_CHUNK_INDEX_HEAD_TAIL)
+        if op == _OP_CHUNK_INDEX:  # thousands of them: parsed inline
+            p = pos + 9
+            if p + 36 > body_end:
+                raise ValueError(f"chunk index at {pos} ends early")
+            t0, t1, chunk_start, chunk_len, map_len = _CHUNK_INDEX_HEAD.unpack_from(mm, p)
+            p += 36
+            if map_len % 10 or p + map_len + 12 > body_end:
+                raise ValueError(f"chunk index at {pos}: message index map of {map_len} bytes overruns it")
+            offsets = dict(struct.iter_unpack("<HQ", mm[p : p + map_len]))
+            p += map_len
+            mi_len, text_len = _CHUNK_INDEX_MID.unpack_from(mm, p)
+            p += 12
+            if p + text_len + 16 > body_end:
+                raise ValueError(f"chunk index at {pos}: compression name overruns it")
+            compression = mm[p : p + text_len].decode()
+            csize, usize = _CHUNK_INDEX_HEAD_TAIL.unpack_from(mm, p + text_len)
             out.chunk_indexes.append(ChunkIndex(message_start_time=t0, message_end_time=t1,
                                                 chunk_start_offset=chunk_start, chunk_length=chunk_len,
                                                 message_index_offsets=offsets, message_index_length=mi_len,
@@ -676,22 +687,22 @@ def _from_summary(path: Path, size: int, mm: mmap.mmap, summary: _Summary) -> _P
     for ch in channels.values():
         schema = summary.schemas.get(ch.schema_id)
         part.topics[ch.topic] = (schema.name if schema is not None else "", ch.message_encoding)
-    times: dict[int, list[npt.NDArray[np.int64]]] = {}
+    blocks: dict[int, list[bytes]] = {}
+    """channel → its message index entries ((log time, offset) u64 pairs), chunk after chunk."""
     wanted = {cid for cid, ch in channels.items() if ch.topic in _PAYLOAD_TOPICS}
     for ci in summary.chunk_indexes:
         payload_entries: list[tuple[int, int, int]] = []  # (channel, log time, offset in chunk)
         for cid, off in ci.message_index_offsets.items():
             if cid not in channels or off + 15 > size:
                 raise _NoIndexError(f"message index at {off} names unknown channel {cid} or lies outside the file")
-            op, ln = _REC.unpack_from(mm, off)
-            rcid, rlen = _MSG_INDEX_HEAD.unpack_from(mm, off + 9)
+            op, ln, rcid, rlen = _MSG_INDEX_REC.unpack_from(mm, off)
             if op != _OP_MESSAGE_INDEX or rcid != cid or rlen % 16 or off + 15 + rlen > size or 6 + rlen > ln:
                 raise _NoIndexError(f"bad message index record at offset {off}")
-            pairs = np.frombuffer(bytes(mm[off + 15 : off + 15 + rlen]), dtype="<u8").astype(np.int64)
-            log_t = pairs[0::2]
-            times.setdefault(cid, []).append(log_t)
+            block = mm[off + 15 : off + 15 + rlen]
+            blocks.setdefault(cid, []).append(block)
             if cid in wanted:
-                payload_entries.extend((cid, int(t), int(o)) for t, o in zip(log_t, pairs[1::2], strict=True))
+                pairs = struct.unpack(f"<{rlen // 8}Q", block)
+                payload_entries.extend((cid, t, o) for t, o in zip(pairs[0::2], pairs[1::2], strict=True))
         if payload_entries:
             data = _chunk_records(mm, ci)
             for cid, log_t_i, off in payload_entries:
@@ -704,13 +715,14 @@ def _from_summary(path: Path, size: int, mm: mmap.mmap, summary: _Summary) -> _P
                 topic = channels[cid].topic
                 part.payloads.setdefault(topic, []).append((log_t_i, bytes(data[off + 9 + 22 : off + 9 + ln])))
     for cid, n in stats.channel_message_counts.items():
-        got = sum(a.size for a in times.get(cid, []))
+        got = sum(len(b) for b in blocks.get(cid, [])) // 16
         if got != n:
             raise _NoIndexError(f"channel {cid}: message index has {got} entries, statistics say {n}")
-    for cid, arrays in times.items():
+    for cid, chunks in blocks.items():  # one array per channel: its log times in file order
+        log_t = np.frombuffer(b"".join(chunks), dtype="<u8")[0::2].astype(np.int64)
         topic = channels[cid].topic
-        part.times.setdefault(topic, []).extend(arrays)
-        part.counts[topic] = part.counts.get(topic, 0) + sum(a.size for a in arrays)
+        part.times.setdefault(topic, []).append(log_t)
+        part.counts[topic] = part.counts.get(topic, 0) + int(log_t.size)
     if stats.message_count:
         part.start_ns, part.end_ns = int(stats.message_start_time), int(stats.message_end_time)
     for mi in summary.metadata_indexes:
