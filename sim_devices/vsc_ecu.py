@@ -910,8 +910,11 @@ class VscEcu:
         with participant(clock, self._name, progress_ns=due[0] if due else UNBOUNDED_NS) as me:
             if self._reader is not None:
                 me.feeds(self._reader)
+            # simulated time stands still at the next frame's time until it is sent (not the budget past
+            # it): otherwise every late wake-up puts the frame's receive time the budget late
+            hold = me.budget_ns
             for due_ns, frame_id, data in zip(due, table.frame_id.tolist(), table.payload, strict=True):
-                me.at(due_ns)
+                me.at(due_ns - hold)
                 if not clock.sleep_until_ns(due_ns, self._stop):
                     return
                 if clock.now_ns() - due_ns > max_lag:

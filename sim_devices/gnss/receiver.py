@@ -144,6 +144,10 @@ class _PortState:
     """Someone reads this port (only then does a governed clock wait for its reader)."""
 
 
+_UNREAD_POLL_S = 0.0002
+"""How often a governed receiver looks whether its reader has read what it wrote (wall seconds)."""
+
+
 class SimReceiver(abc.ABC):
     """Common engine of the simulated receivers (see module docstring).
 
@@ -803,6 +807,7 @@ class SimReceiver(abc.ABC):
         latency_ns = round(self.output_latency_s * NS_PER_S)
         me = participant(self.clock, f"gnss:{self.name}")
         self._governed = me.governed
+        hold_back = me.budget_ns
         try:
             while not self._stop.is_set():
                 self._serve_requests()
@@ -817,10 +822,17 @@ class SimReceiver(abc.ABC):
                 timeout = 0.1 if wake is None else min(0.1, max(0.0, (wake - self.clock.now_ns()) / speed / NS_PER_S))
                 if self._governed:
                     # simulated time waits for this receiver's next output and for its readers
+                    # simulated time stands still at this receiver's next write until it has written, and
+                    # at a write until it is read (not the budget past them): the readers' receive stamps
+                    # of GNSS data are the session's host → GPS time base, and a clock that ran the budget
+                    # past every late wake-up would put all of them the budget late
                     unread = self._unread_since()
-                    me.at(min(UNBOUNDED_NS if wake is None else wake, UNBOUNDED_NS if unread is None else unread))
+                    me.at(min(UNBOUNDED_NS if wake is None else wake - hold_back,
+                              UNBOUNDED_NS if unread is None else unread - hold_back))
                     if unread is not None:
-                        timeout = min(timeout, 0.001)
+                        # the clock stands still until the reader has read: look again soon (a select
+                        # timeout is the only way to see a pty's reader drain it)
+                        timeout = min(timeout, _UNREAD_POLL_S)
                 fds = [st.pty.master_fd for st in self._ports.values() if st.pty is not None and st.pty.connected]
                 assert self._wake_r is not None
                 readable, _, _ = select.select([self._wake_r, *(fd for fd in fds if fd is not None)], [], [], timeout)
