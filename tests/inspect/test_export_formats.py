@@ -191,3 +191,76 @@ def test_mdf4_without_asammdf_names_the_extra(ds: Synth, tmp_path: Path, monkeyp
     monkeypatch.setitem(sys.modules, "asammdf", None)
     with pytest.raises(ConfigError, match=r"vsc-rig\[mf4\]"):
         export_mdf4(ds.base, tmp_path)
+
+
+def _damaged_copy(ds: Synth, out: Path, where: str) -> tuple[Path, int, int, int]:
+    """The session's parts copied into ``out`` with one bit flipped in part 0: in the compressed data of a
+    chunk after the first that holds rover A's BESTPOS (``chunk``) or in the summary (``summary``); (base,
+    that chunk's number, its offset, its last log time)."""
+    import shutil
+
+    from mcap.reader import make_reader
+
+    from rig.recorder import find_parts, scan_part
+
+    parts = find_parts(ds.base)
+    for p in parts:
+        shutil.copy(p, out / p.name)
+    scan = scan_part(parts[0])
+    with open(parts[0], "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert scan.problem is None and summary is not None and len(scan.chunks) > 6
+    k = next(i for i, ci in enumerate(summary.chunk_indexes) if i > 0 and any(
+        summary.channels[cid].topic == "/gnss/rover_a/bestpos" for cid in ci.message_index_offsets))
+    assert k < len(scan.chunks) - 1
+    c = scan.chunks[k]
+    raw = bytearray((out / parts[0].name).read_bytes())
+    if where == "chunk":
+        at = c.offset + c.length - 30
+    else:
+        footer = len(raw) - 8 - 29
+        at = int.from_bytes(raw[footer + 9 : footer + 17], "little") + 40  # inside the summary section
+    raw[at] ^= 0x10
+    (out / parts[0].name).write_bytes(bytes(raw))
+    return out / ds.base.name, k, c.offset, c.message_end_time
+
+
+@pytest.mark.parametrize("where", ["chunk", "summary"])
+def test_damaged_part_exports_every_intact_chunk_and_names_the_damage(ds: Synth, tmp_path: Path, where: str
+                                                                       ) -> None:
+    """A bit flip in a recorded part: the export reads every intact chunk, before and after the damage, and
+    warns with the session reader's description of it (was: refused, or stopped at the damage)."""
+    import pyarrow.dataset as pads
+
+    (tmp_path / "s").mkdir()
+    base, k, chunk_offset, _chunk_end_ns = _damaged_copy(ds, tmp_path / "s", where)
+    damaged = load_session(base)  # the dataset reader: every intact chunk, with the damage in its warnings
+    full = load_session(ds.base)
+    report = export_parquet(base, tmp_path / "pq")
+    if where == "chunk":
+        (note,) = [w for w in report.warnings if f"damaged chunk {k} " in w]
+        assert f"offset {chunk_offset}" in note and "synth.000.mcap (part 1 of 2)" in note
+        assert "/gnss/rover_a/bestpos" in note
+        assert any(f"damaged chunk {k} " in w for w in damaged.warnings)
+    else:
+        (note,) = [w for w in report.warnings if "damaged summary" in w]
+        assert "no data lost" in note
+    groups = {f.source: f.records for f in report.files}
+    lost = 0
+    for topic, n_full in full.topic_counts.items():
+        if not topic.startswith("/gnss/") or topic.endswith(("/raw", "/fix")):
+            continue
+        group = "gnss_" + topic.removeprefix("/gnss/").replace("/", "_")
+        tbl = pads.dataset(tmp_path / "pq" / group, partitioning="hive").to_table()
+        ref = damaged._table(topic)
+        assert tbl.column("time_ns").to_numpy().tolist() == ref.time_ns.tolist(), topic
+        assert groups[group] == len(ref) and damaged.topic_counts.get(topic, 0) == len(ref)
+        lost += n_full - len(ref)
+        if topic.startswith("/gnss/rover_b/"):  # recorded in the chunks after the damaged one: all there
+            assert len(ref) == n_full
+    assert (lost > 0) == (where == "chunk")
+    frames = pads.dataset(tmp_path / "pq" / "can_can0_frames", partitioning="hive").to_table()
+    assert frames.num_rows == damaged.can_frames("can0").records.shape[0] == full.can_frames("can0").records.shape[0]
+    res = runner.invoke(app, ["export", str(base), "--format", "mat", "--out", str(tmp_path / "mat")])
+    assert res.exit_code == 0, res.output
+    assert (f"damaged chunk {k} " if where == "chunk" else "damaged summary") in res.output
