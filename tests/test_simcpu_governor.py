@@ -179,3 +179,36 @@ def test_a_consumer_holds_the_clock_until_it_took_every_frame_of_a_burst(governo
     assert clock.now_ns() == 65 * MS  # owes the 60 ms frame
     rx.not_reading()  # unplugged: owes nothing any more
     assert _wait_until(lambda: clock.now_ns() > 200 * MS)
+
+
+class _StampingBus(can.BusABC):
+    """A bus that notes, for every frame sent, how far the clock had run past the frame's stamp."""
+
+    def __init__(self, clock: ScaledClock) -> None:
+        super().__init__(channel="stamping")
+        self.clock = clock
+        self.late_ns: list[int] = []
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.late_ns.append(self.clock.now_ns() - round(msg.timestamp * 1e9))
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        return None, False
+
+
+def test_the_clock_stands_at_each_frame_until_the_ecu_has_sent_it(governor: ClockGovernor) -> None:
+    """The ECU's frames leave at their own time on a governed clock, however late its thread wakes:
+    the clock does not run the budget past a frame that is due and not sent (it used to, so every
+    late wake-up put the frame's receive time up to the budget late)."""
+    truth = simulate(make_scenario("straight", speed_kmh=50.0, duration_s=1.0))
+    clock = ScaledClock(0, 200.0, governor=governor)  # 5 ms budget = 25 µs of wall time: every wake is late
+    bus = _StampingBus(clock)
+    ecu = VscEcu(truth, bus, clock, 10 * MS, name="ecu:stamping")
+    ecu.start()
+    try:
+        assert ecu.finished.wait(60.0)
+    finally:
+        ecu.stop()
+        bus.shutdown()
+    assert ecu.frames_sent > 100 and ecu.frames_skipped == 0
+    assert max(bus.late_ns) == 0, f"frames sent up to {max(bus.late_ns) / 1e6:.3f} ms after their time"
