@@ -11,13 +11,11 @@ laptop). ``app`` (the complete typer app, for tests and tools) is built on first
 
 from __future__ import annotations
 
-import logging
-import shutil
+import os
 import sys
 import textwrap
-from dataclasses import dataclass
 from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from vsccore import __version__
 from vsccore.errors import RigError
@@ -32,8 +30,7 @@ TRACE_FRAMES_HELP = "Log every CAN frame sent and received (debug level; implies
 HELP_HELP = "Show this message and exit."
 
 
-@dataclass(frozen=True, slots=True)
-class Command:
+class Command(NamedTuple):  # not a dataclass: `rig --help` would pay for importing dataclasses/inspect
     """A command (or command group) of ``rig``, registered without importing its module."""
 
     name: str
@@ -134,6 +131,8 @@ def _new_app() -> typer.Typer:
         trace_frames: bool = typer.Option(False, "--trace-frames", help=TRACE_FRAMES_HELP),
     ) -> None:
         """vsc-rig: record, calibrate and validate vehicle-stability-control road tests."""
+        import logging
+
         debug = debug or trace_frames
         _state["debug"] = debug
         logging.basicConfig(
@@ -195,9 +194,22 @@ def _command_of(args: list[str]) -> str | None:
     return None
 
 
+def _columns() -> int:
+    """The terminal width as rich sees it: ``COLUMNS``, else the terminal's, else 80 (shutil, which does
+    the same, imports compression modules)."""
+    try:
+        return int(os.environ["COLUMNS"])
+    except (KeyError, ValueError):
+        pass
+    try:
+        return os.get_terminal_size(sys.stdout.fileno()).columns
+    except (OSError, ValueError, AttributeError):
+        return 80
+
+
 def _fast_help() -> str:
     """``rig --help`` without typer: the same panels as typer's rich help, plain text."""
-    width = max(60, shutil.get_terminal_size((80, 24)).columns)
+    width = max(60, _columns())
     try:
         "╭─│╰╮╯".encode(sys.stdout.encoding or "ascii")
         tl, tr, bl, br, h, v = "╭", "╮", "╰", "╯", "─", "│"
