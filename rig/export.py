@@ -553,6 +553,7 @@ def _schema_types(topic: str) -> dict[str, str]:
 
 
 _ARROW_JSON_TYPES = ("number", "integer", "boolean", "string")
+_Times = npt.NDArray[np.int64] | Sequence[int]
 
 
 def _json_columns_arrow(types: Mapping[str, str], data: Sequence[bytes]
@@ -615,7 +616,7 @@ def _json_columns_python(types: Mapping[str, str], data: Sequence[bytes]
     return cols, nulls
 
 
-def _json_chunk(group: str, kind: GroupKind, topic: str, log_time: Sequence[int], host: Sequence[int],
+def _json_chunk(group: str, kind: GroupKind, topic: str, log_time: _Times, host: _Times,
                 data: Sequence[bytes]) -> GroupChunk:
     """The messages of a JSON topic as columns (every property of its schema, typed by it)."""
     types = _schema_types(topic)
@@ -630,7 +631,7 @@ def _json_chunk(group: str, kind: GroupKind, topic: str, log_time: Sequence[int]
     return GroupChunk(group, kind, np.asarray(log_time, dtype=np.int64), cols, units, nulls)
 
 
-def _can_chunk(group: str, log_time: Sequence[int], data: Sequence[bytes]) -> GroupChunk:
+def _can_chunk(group: str, log_time: _Times, data: Sequence[bytes]) -> GroupChunk:
     """Every frame of the blocks; a frame's time is its block's log time (the live time base's estimate for
     the block's first frame) plus its offset from that frame on the interface clock (host clock without one)."""
     recs = [T.unpack_can_block(d) for d in data]
@@ -712,7 +713,7 @@ def _daq_layout(payload: bytes, known: _DaqLayout | None) -> tuple[_DaqLayout, i
                       b.rate_hz), first
 
 
-def _daq_chunk(group: str, log_time: Sequence[int], data: Sequence[bytes]) -> GroupChunk:
+def _daq_chunk(group: str, log_time: _Times, data: Sequence[bytes]) -> GroupChunk:
     """Samples of the blocks in volts (float32, lossless for the DAQ's int16 counts and float32 volts); a
     sample's time is its block's log time plus its index offset at the nominal rate. Consecutive blocks of
     one layout are decoded as one array."""
@@ -853,8 +854,8 @@ class _Pending:
     topic: str
     group: str
     kind: GroupKind
-    log_time: list[int] = field(default_factory=list)
-    host: list[int] = field(default_factory=list)
+    log_time: list[npt.NDArray[np.int64]] = field(default_factory=list)
+    host: list[npt.NDArray[np.int64]] = field(default_factory=list)
     data: list[bytes] = field(default_factory=list)
     rows: int = 0
     nbytes: int = 0
@@ -916,7 +917,11 @@ class _ChunkRef:
     length: int
     compression: str
     uncompressed_size: int
+    start_ns: int
     end_ns: int
+    message_index: Mapping[int, int] = field(default_factory=dict)
+    """Channel id → file offset of the chunk's MessageIndex record for it (from the summary's chunk index)."""
+    message_index_length: int = 0
 
 
 @dataclass(slots=True)
@@ -947,11 +952,12 @@ def _plan_part(part: Path) -> _PartPlan:
         raise SessionFileError(f"{part}: cannot open session part: {exc}") from exc
     if summary is not None and problem is None and (summary.chunk_indexes or summary.channels):
         chunks = [_ChunkRef(ci.chunk_start_offset, ci.chunk_length, ci.compression, ci.uncompressed_size,
-                            ci.message_end_time) for ci in summary.chunk_indexes]
+                            ci.message_start_time, ci.message_end_time, dict(ci.message_index_offsets),
+                            ci.message_index_length) for ci in summary.chunk_indexes]
         return _PartPlan({cid: ch.topic for cid, ch in summary.channels.items()}, chunks, None)
     scan = scan_part(part, collect=False)
-    chunks = [_ChunkRef(c.offset, c.length, c.compression, c.uncompressed_size, c.message_end_time)
-              for c in scan.chunks]
+    chunks = [_ChunkRef(c.offset, c.length, c.compression, c.uncompressed_size, c.message_start_time,
+                        c.message_end_time) for c in scan.chunks]
     return _PartPlan({cid: ch.topic for cid, ch in scan.channels.items()}, chunks, scan)
 
 
@@ -986,11 +992,22 @@ def _read_chunk(fd: int, ref: _ChunkRef) -> tuple[tuple[int, int], bytes]:
     return (int(t0), int(t1)), data
 
 
-def _chunk_messages(data: bytes, chunk_head: tuple[int, int], wanted: Mapping[int, object]
-                    ) -> list[tuple[int, int, int, bytes]]:
-    """(channel id, log time, publish time, payload) of the chunk's messages on ``wanted`` channels; the
-    chunk's header times must match its messages' (as the scanner checks). Raises _BadChunkError."""
-    out: list[tuple[int, int, int, bytes]] = []
+@dataclass(slots=True)
+class _Messages:
+    """One channel's messages in one chunk, in file order."""
+
+    log_time: npt.NDArray[np.int64]
+    publish_time: npt.NDArray[np.int64]
+    data: list[bytes]
+    rows: npt.NDArray[np.int64]
+    """Rows each message makes (:func:`_block_rows`)."""
+
+
+def _chunk_messages(data: bytes, chunk_head: tuple[int, int], wanted: Mapping[int, _Pending]
+                    ) -> dict[int, _Messages]:
+    """The chunk's messages on ``wanted`` channels, record by record; the chunk's header times must match its
+    messages' (as the scanner checks). Raises _BadChunkError."""
+    got: dict[int, tuple[list[int], list[int], list[bytes]]] = {}
     end = len(data)
     q = 0
     lo: int | None = None
@@ -1010,12 +1027,72 @@ def _chunk_messages(data: bytes, chunk_head: tuple[int, int], wanted: Mapping[in
                 if hi is None or lt > hi:
                     hi = lt
                 if cid in wanted:
-                    out.append((cid, lt, pt, data[q + 31 : nxt]))
+                    g = got.get(cid)
+                    if g is None:
+                        g = got[cid] = ([], [], [])
+                    g[0].append(lt)
+                    g[1].append(pt)
+                    g[2].append(data[q + 31 : nxt])
             q = nxt
     except struct.error as exc:
         raise _BadChunkError(f"records do not parse: {exc}") from exc
     if ((lo, hi) if lo is not None else (0, 0)) != chunk_head:
         raise _BadChunkError(f"header times {chunk_head} disagree with its messages' {lo}..{hi}")
+    return {cid: _Messages(np.asarray(lt, dtype=np.int64), np.asarray(pt, dtype=np.int64), d,
+                           np.asarray([_block_rows(wanted[cid].kind, x) for x in d], dtype=np.int64))
+            for cid, (lt, pt, d) in got.items()}
+
+
+def _gather(buf: npt.NDArray[np.uint8], pos: npt.NDArray[np.int64], dtype: str) -> npt.NDArray[Any]:
+    """The little-endian ``dtype`` value at each byte offset ``pos`` of ``buf``."""
+    size = np.dtype(dtype).itemsize
+    return np.ascontiguousarray(buf[pos[:, None] + np.arange(size)]).view(dtype).reshape(-1)
+
+
+def _indexed_messages(fd: int, ref: _ChunkRef, data: bytes, chunk_head: tuple[int, int],
+                      wanted: Mapping[int, _Pending]) -> dict[int, _Messages] | None:
+    """The chunk's messages on ``wanted`` channels found through its MessageIndex records (no walk over the
+    other channels' messages), each checked against the record it points at; None when the index is missing
+    or does not fit the chunk (then the chunk is walked record by record)."""
+    if not ref.message_index or chunk_head != (ref.start_ns, ref.end_ns):
+        return None
+    base = min(ref.message_index.values())
+    region = os.pread(fd, ref.message_index_length, base)
+    buf = np.frombuffer(data, dtype=np.uint8)
+    out: dict[int, _Messages] = {}
+    for cid, pend in wanted.items():
+        at = ref.message_index.get(cid)
+        if at is None:
+            continue
+        p = at - base
+        try:
+            op, ln = _REC.unpack_from(region, p)
+            cid2, alen = struct.unpack_from("<HI", region, p + 9)
+        except struct.error:
+            return None
+        if op != 0x07 or cid2 != cid or ln != 6 + alen or alen % 16:
+            return None
+        pairs = np.frombuffer(region, dtype="<u8", count=alen // 8, offset=p + 15).reshape(-1, 2).astype(np.int64)
+        if not pairs.shape[0]:
+            continue
+        pairs = pairs[np.argsort(pairs[:, 1], kind="stable")]  # file order (receive order for CAN counters)
+        off = pairs[:, 1]
+        if int(off[0]) < 0 or int(off[-1]) + 31 > len(data):
+            return None
+        ln_rec = _gather(buf, off + 1, "<u8").astype(np.int64)
+        ends = off + 9 + ln_rec
+        if (np.any(buf[off] != _OP_MESSAGE) or np.any(ln_rec < 22) or np.any(ends > len(data))
+                or np.any(_gather(buf, off + 9, "<u2") != cid) or np.any(_gather(buf, off + 15, "<u8") != pairs[:, 0])):
+            return None
+        starts = off + 31
+        rows = np.ones(off.shape[0], dtype=np.int64)
+        hdr = {GroupKind.CAN_FRAMES: 8, GroupKind.DAQ: 12}.get(pend.kind)
+        if hdr is not None:
+            fits = ends - starts >= hdr + 4
+            if np.any(fits):
+                rows[fits] = np.maximum(_gather(buf, starts[fits] + hdr, "<u4").astype(np.int64), 1)
+        out[cid] = _Messages(pairs[:, 0], _gather(buf, off + 23, "<u8").astype(np.int64),
+                             [data[a:b] for a, b in zip(starts.tolist(), ends.tolist(), strict=True)], rows)
     return out
 
 
@@ -1072,7 +1149,7 @@ def iter_groups(
     def convert(p: _Pending) -> Iterator[GroupChunk]:
         if not p.data:
             return
-        lt, host, data = p.log_time, p.host, p.data
+        lt, host, data = np.concatenate(p.log_time), np.concatenate(p.host), p.data
         p.log_time, p.host, p.data, p.rows, p.nbytes = [], [], [], 0, 0
         try:
             if p.kind is GroupKind.CAN_FRAMES:
@@ -1127,20 +1204,35 @@ def iter_groups(
                     break
                 try:
                     head, data = _read_chunk(fd, ref)
-                    msgs = _chunk_messages(data, head, targets)
+                    msgs = _indexed_messages(fd, ref, data, head, targets)
+                    if msgs is None:
+                        msgs = _chunk_messages(data, head, targets)
                 except _BadChunkError as exc:
                     bad.append(str(exc))
                     continue
                 del data
-                for cid, lt, pt, payload in msgs:
+                for cid, m in msgs.items():
                     pend = targets[cid]
-                    pend.log_time.append(lt)
-                    pend.host.append(pt)
-                    pend.data.append(payload)
-                    pend.rows += _block_rows(pend.kind, payload)
-                    pend.nbytes += len(payload)
-                    if pend.rows >= chunk_rows or pend.nbytes >= chunk_bytes:
-                        yield from convert(pend)
+                    n = len(m.data)
+                    rows_cum = np.cumsum(m.rows)
+                    bytes_cum = np.cumsum(np.fromiter((len(d) for d in m.data), dtype=np.int64, count=n))
+                    i0 = 0
+                    while i0 < n:
+                        # as many messages as fit the batch (at least one), then the batch goes out when full
+                        r0 = int(rows_cum[i0 - 1]) if i0 else 0
+                        b0 = int(bytes_cum[i0 - 1]) if i0 else 0
+                        k = min(int(np.searchsorted(rows_cum, r0 + chunk_rows - pend.rows, side="right")),
+                                int(np.searchsorted(bytes_cum, b0 + chunk_bytes - pend.nbytes, side="right")))
+                        i1 = max(k, i0 + 1) if not pend.data else max(k, i0)
+                        if i1 > i0:
+                            pend.log_time.append(m.log_time[i0:i1])
+                            pend.host.append(m.publish_time[i0:i1])
+                            pend.data.extend(m.data[i0:i1])
+                            pend.rows += int(rows_cum[i1 - 1]) - r0
+                            pend.nbytes += int(bytes_cum[i1 - 1]) - b0
+                        if pend.rows >= chunk_rows or pend.nbytes >= chunk_bytes or i1 < n:
+                            yield from convert(pend)
+                        i0 = i1
                 del msgs
                 if progress is not None:
                     progress(ref.end_ns)
