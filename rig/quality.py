@@ -359,7 +359,7 @@ def session_verdicts(ds: Session) -> dict[str, StreamQuality]:
         s.main_topic = T.can_frames(bus)
         try:
             frames = ds.can_frames(bus)
-        except Exception as exc:  # an unreadable stream is judged by the command that reads it
+        except RigError as exc:  # an unreadable stream is the error of the command that reads it
             notes[name] = f"not judged: {exc}"
             continue
         s.times = np.asarray(frames.time_ns, dtype=np.int64)
