@@ -98,11 +98,12 @@ def _cut(stream: bytes, ends: list[int], t_of_end: list[int], rng: np.random.Gen
     return out
 
 
-def write_session(out: Path, name: str = "run", duration_s: float = 30.0, rollover_bytes: int | None = 40_000) -> Synth:
+def write_session(out: Path, name: str = "run", duration_s: float = 30.0, rollover_bytes: int | None = 40_000,
+                  chunk_size: int = 8 * 1024) -> Synth:
     rng = np.random.default_rng(7)
     epochs = int(duration_s * 20)
     meta = session_metadata(session={"output": {"name": name}}, vehicle={"name": "test car"}, calibration=CALIBRATION)
-    opts = RecorderOptions(min_free_bytes=0, warn_free_bytes=0, reserve_bytes=0, chunk_size=8 * 1024,
+    opts = RecorderOptions(min_free_bytes=0, warn_free_bytes=0, reserve_bytes=0, chunk_size=chunk_size,
                            rollover_size_bytes=rollover_bytes)
     att = Attachment("session.toml", "application/toml", b"[output]\nname = 'run'\n")
     syn = Synth(out / name, epochs)
