@@ -30,6 +30,7 @@ import math
 import multiprocessing
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 import time
@@ -836,6 +837,9 @@ def _device_host_main(conn: Connection) -> None:
     """Entry point of the device process (see :class:`_DeviceHost`)."""
     # Ctrl-C reaches the whole process group: the recording process decides when the devices stop.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # a device thread that wakes at its time must get the interpreter soon: a governed clock stands
+    # still until it has acted (the default 5 ms switch interval is 40 ms of simulated time at 8x)
+    sys.setswitchinterval(GOVERNED_SWITCH_INTERVAL_S)
     world: SimWorld | None = None
     server: SocketcandServer | None = None
     try:
@@ -875,6 +879,10 @@ def _device_host_main(conn: Connection) -> None:
             with contextlib.suppress(OSError):
                 conn.send(("stopped", health))
             conn.close()
+
+
+GOVERNED_SWITCH_INTERVAL_S = 0.0005
+"""Interpreter switch interval (s) of the processes of a governed simulated recording."""
 
 
 def can_reader_name(channel: str) -> str:
@@ -963,6 +971,10 @@ def record_simulated(
     stop = stop or threading.Event()
     world = SimWorld(cfg, drive=drive, speed=speed, lead_s=lead_s, rtk=rtk, truth=truth,
                      device_process=device_process, governed=governed)
+    switch = sys.getswitchinterval()
+    if world.governed:
+        # readers that wake for their data must get the interpreter soon (see _device_host_main)
+        sys.setswitchinterval(min(switch, GOVERNED_SWITCH_INTERVAL_S))
     world.start()
     completed = False
     try:
@@ -999,6 +1011,7 @@ def record_simulated(
             summary = session.stop()
     finally:
         governor_text = world.governor_summary() if world.clock is not None else ""
+        sys.setswitchinterval(switch)
         world.stop()
     return SimRecording(summary, world, completed, time.monotonic() - t0, world.governor_stats(), governor_text)
 
