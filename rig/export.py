@@ -637,8 +637,11 @@ def _can_chunk(group: str, log_time: _Times, data: Sequence[bytes]) -> GroupChun
     recs = [T.unpack_can_block(d) for d in data]
     width = max((r.dtype["data"].shape[0] for r in recs), default=8)
     counts = np.asarray([r.shape[0] for r in recs], dtype=np.int64)
-    rec = np.concatenate([r if r.dtype["data"].shape[0] == width else _widen(r, width) for r in recs]) if recs \
-        else np.zeros(0, dtype=T.can_dtype(8))
+    if recs and all(r.dtype["data"].shape[0] == width for r in recs):  # one copy of the records (checked above)
+        rec = np.frombuffer(b"".join([d[T.CAN_BLOCK_HEADER.size:] for d in data]), dtype=T.can_dtype(width))
+    else:
+        rec = np.concatenate([r if r.dtype["data"].shape[0] == width else _widen(r, width) for r in recs]) \
+            if recs else np.zeros(0, dtype=T.can_dtype(8))
     dev = rec["device_ts_ns"].astype(np.int64)
     host = rec["host_ts_ns"].astype(np.int64)
     t = np.zeros(0, dtype=np.int64)
@@ -773,6 +776,9 @@ class _RoleDecoding:
     decoder: Any
     roles: tuple[tuple[str, str], ...]
     """(role, SI unit) in the role map's order."""
+    carry: Any = None
+    """The last frame of each identifier of the previous batch (a FrameBatch), decoded again in front of the
+    next batch so that counter checks run on across batches as over the whole bus."""
 
 
 def _session_attachments(parts: Sequence[Path]) -> dict[str, bytes]:
@@ -819,20 +825,37 @@ def _role_decoding(path: Path, attachments: Mapping[str, bytes], bus: str) -> _R
 
 def _roles_chunk(rd: _RoleDecoding, frames: GroupChunk) -> GroupChunk | None:
     """The roles the frames carry, wide: one column per role (``<role>_<unit>``, NaN where a frame does not
-    carry it), ``<role>_ok``; one row per frame that carries a role."""
+    carry it), ``<role>_ok``; one row per frame that carries a role. Batches of a bus must come in receive
+    order: each is decoded after the previous batch's last frame of each identifier (``rd.carry``)."""
     from drivers.can.checks import CAN_EFF_FLAG
     from drivers.can.vector_decode import FrameBatch
 
     c = frames.columns
     keep = ~(c["error_frame"] | c["remote_frame"])
     ids = np.where(c["extended"][keep], c["can_id"][keep] | np.uint32(CAN_EFF_FLAG), c["can_id"][keep])
-    batch = FrameBatch(frames.time_ns[keep], ids.astype(np.uint32), c["data"][keep], c["len"][keep].astype(np.int16))
+    ts, data, dlc = frames.time_ns[keep], c["data"][keep], c["len"][keep].astype(np.int16)
+    n_carry = 0
+    prev = rd.carry
+    if prev is not None and len(prev):
+        n_carry = len(prev)
+        width = max(data.shape[1], prev.data.shape[1])
+        pad = np.zeros((n_carry + data.shape[0], width), dtype=np.uint8)
+        pad[:n_carry, : prev.data.shape[1]] = prev.data
+        pad[n_carry:, : data.shape[1]] = data
+        ts, ids, data = np.concatenate([prev.timestamps_ns, ts]), np.concatenate([prev.ids, ids]), pad
+        dlc = np.concatenate([prev.dlc, dlc])
+    batch = FrameBatch(ts, ids.astype(np.uint32), data, dlc)
     result = rd.decoder.decode(batch)
+    if len(batch):
+        _u, last_rev = np.unique(batch.ids[::-1], return_index=True)
+        last = np.sort(len(batch) - 1 - last_rev)
+        rd.carry = FrameBatch(batch.timestamps_ns[last], batch.ids[last], batch.data[last], batch.dlc[last])
     rows = np.unique(np.concatenate([np.asarray(s.batch_index, dtype=np.int64) for s in result.roles.values()]
                                     or [np.zeros(0, dtype=np.int64)]))
+    rows = rows[rows >= n_carry]  # the carried frames were exported with their own batch
     if rows.size == 0:
         return None
-    cols: dict[str, npt.NDArray[Any]] = {"can_id": c["can_id"][keep][rows]}
+    cols: dict[str, npt.NDArray[Any]] = {"can_id": c["can_id"][keep][rows - n_carry]}
     units = {"can_id": ""}
     for role, unit in rd.roles:
         s = result.roles.get(role)
@@ -841,9 +864,11 @@ def _roles_chunk(rd: _RoleDecoding, frames: GroupChunk) -> GroupChunk | None:
         v = np.full(rows.size, np.nan)
         ok = np.zeros(rows.size, dtype=bool)
         if s is not None and len(s.values):
-            pos = np.searchsorted(rows, np.asarray(s.batch_index, dtype=np.int64))
-            v[pos] = s.values
-            ok[pos] = s.ok
+            bi = np.asarray(s.batch_index, dtype=np.int64)
+            mine = bi >= n_carry
+            pos = np.searchsorted(rows, bi[mine])
+            v[pos] = s.values[mine]
+            ok[pos] = s.ok[mine]
         cols[name], units[name] = v, unit
         cols[f"{role}_ok"], units[f"{role}_ok"] = ok, ""
     return GroupChunk(f"can_{rd.bus}_roles", GroupKind.CAN_ROLES, batch.timestamps_ns[rows], cols, units)

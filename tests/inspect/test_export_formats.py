@@ -264,3 +264,39 @@ def test_damaged_part_exports_every_intact_chunk_and_names_the_damage(ds: Synth,
     res = runner.invoke(app, ["export", str(base), "--format", "mat", "--out", str(tmp_path / "mat")])
     assert res.exit_code == 0, res.output
     assert (f"damaged chunk {k} " if where == "chunk" else "damaged summary") in res.output
+
+
+def test_can_counter_checks_run_on_across_batches(ds: Synth) -> None:
+    """A counter jump on the first frame of a batch is flagged, as when the whole bus is decoded at once (was:
+    each batch decoded alone, so its first frame was never checked)."""
+    import rig.topics as T  # noqa: N812 - short alias
+    from drivers.can.dbc import parse_dbc_text
+    from drivers.can.roles import encode_role_frame
+    from rig.export import _can_chunk, _role_decoding, _roles_chunk
+
+    db = parse_dbc_text(DBC.read_text())
+    stream = open_stream(ds.base)
+    rd_one = _role_decoding(ds.base, stream.attachments, "can0")  # the session's attached DBC and role map
+    rm = rd_one.decoder.rolemap
+    n = 100
+    counters = [k if k < 50 else k + 3 for k in range(n)]  # frames lost just before frame 50
+    payloads = np.stack([np.frombuffer(encode_role_frame(db, rm, "ESC_SensorCluster",
+                                                         {"yaw_rate": 0.01 * k, "lat_accel": 0.0}, counter=c),
+                                       dtype=np.uint8) for k, c in enumerate(counters)])
+    t = 1_700_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 10_000_000
+
+    def block(sl: slice) -> bytes:
+        m = t[sl].size
+        return T.pack_can_columns(t[sl], t[sl], np.full(m, 257), np.full(m, int(T.CanFlag.RX)), np.full(m, 8),
+                                  np.full(m, 8), payloads[sl])
+
+    whole = _roles_chunk(rd_one, _can_chunk("can_can0_frames", [int(t[0])], [block(slice(0, n))]))
+    rd = _role_decoding(ds.base, stream.attachments, "can0")
+    first = _roles_chunk(rd, _can_chunk("can_can0_frames", [int(t[0])], [block(slice(0, 50))]))
+    second = _roles_chunk(rd, _can_chunk("can_can0_frames", [int(t[50])], [block(slice(50, n))]))
+    assert whole is not None and first is not None and second is not None
+    ok = whole.columns["yaw_rate_ok"]
+    assert not ok[50] and ok[:50].all() and ok[51:].all()  # the decoder flags the jump over the whole bus
+    assert np.concatenate([first.columns["yaw_rate_ok"], second.columns["yaw_rate_ok"]]).tolist() == ok.tolist()
+    assert np.concatenate([first.time_ns, second.time_ns]).tolist() == whole.time_ns.tolist()
+    assert len(second) == 50  # the frame carried from the first batch is not exported twice
