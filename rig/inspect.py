@@ -52,7 +52,7 @@ where a value is unknown:
   ``latency_p50_ns``, ``latency_p95_ns``, ``rms_ns``, ``max_abs_ns``, ``leap_seconds``, ``time_ns``,
   ``records``], ``verdicts``: {``problem``, ``streams``: {stream: :meth:`rig.quality.StreamQuality.to_json`},
   ``source`` (recorded|data: the recorder's verdicts at the end of the recording, or computed from the
-  data — ``rig info --verify``; see :class:`VerdictSource`)}};
+  data — ``rig info --verify``; see :class:`VerdictSource`)} or ``null`` when not asked for};
 - ``calibration``: the calibration metadata in force, flat ``{key: value text}`` as recorded;
 - ``calibration_file``: the calibration results next to the session (``<base>.calibration.json``,
   written by ``rig calibrate-baseline`` and the other ``rig calibrate-*`` commands), or ``null`` when
