@@ -233,7 +233,12 @@ def _fast_help() -> str:
     lines += panel("Options", [("--version", VERSION_HELP), ("--debug", DEBUG_HELP),
                                ("--trace-frames", TRACE_FRAMES_HELP), ("--help", HELP_HELP)])
     lines += panel("Commands", [(c.name, c.help) for c in COMMANDS])
-    return "\n".join(lines) + "\n"
+    text = "\n".join(lines) + "\n"
+    encoding = sys.stdout.encoding or "ascii"
+    try:  # what the terminal cannot show (→, δ, ·) becomes "?", as a crash would help nobody
+        return text.encode(encoding, "replace").decode(encoding)
+    except LookupError:
+        return text
 
 
 def _usage_line(exc: typer.TyperException) -> str:
