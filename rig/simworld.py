@@ -235,8 +235,10 @@ class SimWorld:
             truth topic stay in this process; faults (unplugging) of receivers and ECUs are only
             available with the devices in this process.
         governed: run a governed clock (default ``simulation.governed``): simulated time waits,
-            in both processes, for any device or reader more than ``simulation.governor_budget_ms``
-            behind (:class:`~vsccore.clock.ClockGovernor`), so a busy host makes the session slower,
+            in both processes (:class:`~vsccore.clock.ClockGovernor`): it stands still at each ECU
+            frame and GNSS write until it is sent, at each GNSS write until it is read, and at most
+            ``simulation.governor_budget_ms`` past a CAN frame the reader has not taken yet (and
+            past the DAQ's and the truth writer's progress), so a busy host makes the session slower,
             not late. False: the host's scheduling delays show, magnified by the speed factor.
     """
 
