@@ -60,6 +60,10 @@ NOVATEL_SUFFIX = ".gps"
 CORRECTIONS_STEM = "corrections"
 _CORRECTION_SUFFIXES = {"rtcmv3": ".rtcm3", "rtcm3": ".rtcm3", "rtca": ".rtca", "cmr": ".cmr", "novatel": ".gps"}
 _SEQ_MOD = 1 << 32
+_CHUNK_ROWS = 131_072
+"""Rows (JSON messages, CAN frames, DAQ samples) gathered per topic before a batch is converted and written."""
+_CHUNK_BYTES = 8 << 20
+"""Payload bytes gathered per topic before a batch is converted (bounds memory whatever the message size)."""
 
 
 class ExportKind(StrEnum):
@@ -309,7 +313,8 @@ def _write_csv(path: Path, header: Sequence[str], columns: Sequence[npt.NDArray[
     return n
 
 
-def export_csv(path: Path | str, out_dir: Path | str, *, overwrite: bool = False) -> ExportReport:
+def export_csv(path: Path | str, out_dir: Path | str, *, overwrite: bool = False, chunk_rows: int = _CHUNK_ROWS
+               ) -> ExportReport:
     """Write the session's decoded tables as CSV files into ``out_dir`` (created if needed).
 
     - ``gnss_<receiver>_<log>.csv`` for BESTPOS, BESTVEL, HEADING, MARKPOS, MARKTIME and TIME:
@@ -319,8 +324,13 @@ def export_csv(path: Path | str, out_dir: Path | str, *, overwrite: bool = False
     - ``optical_<sensor>.csv`` from the ``/optical/<sensor>`` topics;
     - ``events.csv``: ``time_ns, kind, severity, source, text, start_ns, end_ns, details``.
 
-    A table that cannot be made (e.g. no DBC attached) is skipped with a warning. Raises
-    :class:`~vsccore.errors.SessionFileError` for unreadable parts and existing files.
+    The bulk (CAN roles, optical samples) is streamed in batches of ``chunk_rows`` through every part
+    (:func:`iter_groups`), each batch in time order, on the recorded time base as in the Parquet, MDF4 and MAT
+    exports (CAN: a block's log time plus the interface clock); the GNSS logs and events are read through
+    :mod:`rig.dataset` (only those topics: their times go on UTC from the GPS time with the receivers' leap
+    seconds). A table that cannot be made
+    (e.g. no DBC attached) is skipped with a warning; damaged chunks are skipped with a warning naming them.
+    Raises :class:`~vsccore.errors.SessionFileError` for unreadable parts and existing files.
     """
     from rig.dataset import load_session
 
@@ -329,7 +339,10 @@ def export_csv(path: Path | str, out_dir: Path | str, *, overwrite: bool = False
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SessionFileError(f"{out}: cannot create the export directory: {exc}") from exc
-    session = load_session(path)
+    stream = open_stream(path)
+    small = sorted({t for part in stream.parts for t in _plan_part(part).topics.values()
+                    if t == T.TOPIC_EVENTS or (t.startswith("/gnss/") and _group_of_topic(t) is not None)})
+    session = load_session(path, topics=small)
     files: list[ExportedFile] = []
     warnings: list[str] = list(session.warnings)
 
@@ -347,42 +360,7 @@ def export_csv(path: Path | str, out_dir: Path | str, *, overwrite: bool = False
             names = list(tbl.columns)
             table(f"gnss_{rx}_{log_name}.csv", f"gnss {rx} {log_name}", ["time_ns", "host_ns", "valid", *names],
                   [tbl.time_ns, tbl.host_ns, tbl.valid, *(tbl.columns[k] for k in names)])
-    for bus in session.can_buses():
-        try:
-            roles = session.can_roles(bus)
-        except (AnalysisError, ConfigError) as exc:
-            warnings.append(f"CAN bus {bus}: roles not exported: {exc}")
-            continue
-        rows_t: list[npt.NDArray[np.int64]] = []
-        rows_role: list[npt.NDArray[Any]] = []
-        rows_v: list[npt.NDArray[np.float64]] = []
-        rows_unit: list[npt.NDArray[Any]] = []
-        rows_ok: list[npt.NDArray[np.bool_]] = []
-        rows_flags: list[npt.NDArray[Any]] = []
-        for role, s in roles.items():
-            n = len(s)
-            rows_t.append(s.timestamps_ns)
-            rows_role.append(np.full(n, role, dtype=object))
-            rows_v.append(s.values)
-            rows_unit.append(np.full(n, s.unit, dtype=object))
-            rows_ok.append(s.ok)
-            rows_flags.append(s.flags)
-        if not rows_t:
-            warnings.append(f"CAN bus {bus}: no role values decoded")
-            continue
-        t = np.concatenate(rows_t)
-        order = np.argsort(t, kind="stable")
-        table(f"can_{bus}_roles.csv", f"can {bus} roles", ["time_ns", "role", "value", "unit", "ok", "flags"],
-              [t[order], np.concatenate(rows_role)[order], np.concatenate(rows_v)[order],
-               np.concatenate(rows_unit)[order], np.concatenate(rows_ok)[order], np.concatenate(rows_flags)[order]])
-    for topic in sorted(session.topic_counts):
-        spec_params = _optical_sensor(topic)
-        if spec_params is None:
-            continue
-        times, sample = session.optical(spec_params)
-        table(f"optical_{spec_params}.csv", f"optical {spec_params}",
-              ["time_ns", "vx_mps", "vy_mps", "speed_mps", "slip_angle_rad", "valid"],
-              [times, sample.vx, sample.vy, sample.speed, sample.slip_angle, sample.valid])
+    files.extend(_stream_csv_tables(stream, out, overwrite, warnings, chunk_rows))
     evs = session.events
     if evs:
         header = ["time_ns", "kind", "severity", "source", "text", "start_ns", "end_ns", "details"]
@@ -393,6 +371,112 @@ def export_csv(path: Path | str, out_dir: Path | str, *, overwrite: bool = False
     if not files:
         raise AnalysisError(f"{path}: nothing to export as CSV (no decoded GNSS, CAN, optical or event data)")
     return ExportReport(tuple(files), tuple(warnings))
+
+
+@dataclass(slots=True)
+class _CsvStream:
+    """One CSV file written batch by batch (Arrow's CSV writer), under a temporary name until complete."""
+
+    path: Path
+    source: str
+    sink: Any = None
+    writer: Any = None
+    rows: int = 0
+
+
+def _stream_csv_tables(stream: SessionStream, out: Path, overwrite: bool, warnings: list[str], chunk_rows: int
+                       ) -> list[ExportedFile]:
+    """``can_<bus>_roles.csv`` (long) and ``optical_<sensor>.csv``, streamed from the session's frames and samples."""
+    import pyarrow as pa
+    import pyarrow.csv as pcsv
+
+    opts = pcsv.WriteOptions(quoting_style="needed")
+    outs: dict[str, _CsvStream] = {}
+    role_dec: dict[str, _RoleDecoding | None] = {}
+    buses: set[str] = set()
+
+    def write(name: str, source: str, tbl: Any) -> None:
+        st = outs.get(name)
+        if st is None:
+            st = outs[name] = _CsvStream(out / name, source)
+            _check_new(st.path, overwrite)
+            try:
+                st.sink = pa.OSFile(str(_partial(st.path)), "wb")
+            except OSError as exc:
+                raise SessionFileError(f"{st.path}: cannot write the CSV file: {exc}") from exc
+            st.writer = pcsv.CSVWriter(st.sink, tbl.schema, write_options=opts)
+        try:
+            st.writer.write_table(tbl)
+        except OSError as exc:
+            raise SessionFileError(f"{st.path}: cannot write the CSV file: {exc}") from exc
+        st.rows += tbl.num_rows
+
+    def nullable(v: npt.NDArray[np.float64]) -> Any:
+        return pa.array(v, pa.float64(), mask=np.isnan(v))
+
+    try:
+        for chunk in iter_groups(stream, topics=["can_*_frames", "optical_*"], roles=False, chunk_rows=chunk_rows):
+            if chunk.kind is GroupKind.OPTICAL:
+                sensor = chunk.group.removeprefix("optical_")
+                order = np.argsort(chunk.time_ns, kind="stable")
+
+                def col(name: str, order: npt.NDArray[np.intp] = order, chunk: GroupChunk = chunk) -> Any:
+                    v = chunk.numeric(name)[order] if name in chunk.columns else np.full(len(order), np.nan)
+                    return nullable(np.asarray(v, dtype=np.float64))
+
+                valid = chunk.columns["valid"][order] if "valid" in chunk.columns else np.ones(len(order), bool)
+                write(f"optical_{sensor}.csv", f"optical {sensor}", pa.table({
+                    "time_ns": chunk.time_ns[order], "vx_mps": col("vx_mps"), "vy_mps": col("vy_mps"),
+                    "speed_mps": col("speed_mps"), "slip_angle_rad": col("slip_angle_rad"),
+                    "valid": valid.astype(np.int8)}))
+                continue
+            bus = chunk.group.removeprefix("can_").removesuffix("_frames")
+            buses.add(bus)
+            if bus not in role_dec:
+                try:
+                    role_dec[bus] = _role_decoding(stream.path, stream.attachments, bus)
+                except (AnalysisError, ConfigError) as exc:
+                    role_dec[bus] = None
+                    warnings.append(f"CAN bus {bus}: roles not exported: {exc}")
+            rd = role_dec[bus]
+            if rd is None:
+                continue
+            result, n_carry, _batch = _decode_roles(rd, chunk)
+            series = [(role, s) for role, s in result.roles.items() if len(s)]
+            parts = []
+            for role, s in series:
+                mine = np.asarray(s.batch_index, dtype=np.int64) >= n_carry
+                if np.any(mine):
+                    parts.append((role, s.unit, s.timestamps_ns[mine], s.values[mine], s.ok[mine], s.flags[mine]))
+            if not parts:
+                continue
+            t = np.concatenate([p[2] for p in parts])
+            order = np.argsort(t, kind="stable")
+            role_names = pa.array([p[0] for p in parts], pa.string())
+            unit_names = pa.array([p[1] for p in parts], pa.string())
+            which = np.concatenate([np.full(p[2].size, i, dtype=np.int32) for i, p in enumerate(parts)])[order]
+            write(f"can_{bus}_roles.csv", f"can {bus} roles", pa.table({
+                "time_ns": t[order], "role": role_names.take(pa.array(which)),
+                "value": nullable(np.concatenate([p[3] for p in parts])[order]),
+                "unit": unit_names.take(pa.array(which)),
+                "ok": np.concatenate([p[4] for p in parts])[order].astype(np.int8),
+                "flags": np.concatenate([p[5] for p in parts])[order]}))
+        for st in outs.values():
+            st.writer.close()
+            st.sink.close()
+            os.replace(_partial(st.path), st.path)
+    except BaseException:
+        for st in outs.values():
+            if st.sink is not None and not st.sink.closed:
+                st.sink.close()
+            _partial(st.path).unlink(missing_ok=True)
+        raise
+    for bus in sorted(buses):
+        if role_dec.get(bus) is not None and f"can_{bus}_roles.csv" not in outs:
+            warnings.append(f"CAN bus {bus}: no role values decoded")
+    warnings.extend(w for w in stream.warnings if w not in warnings and w.startswith("CAN bus"))
+    return [ExportedFile(st.path, ExportKind.TABLE, st.source, st.path.stat().st_size, st.rows)
+            for st in sorted(outs.values(), key=lambda x: x.path.name)]
 
 
 def _optical_sensor(topic: str) -> str | None:
@@ -447,10 +531,6 @@ _TRUTH_UNITS = {
     "road_wheel_angle": "rad", "swa": "rad", "wheel_speed": "m/s", "wheel_load": "N", "ltr": "",
 }
 _WHEELS = ("fl", "fr", "rl", "rr")
-_CHUNK_ROWS = 131_072
-"""Rows (JSON messages, CAN frames, DAQ samples) gathered per topic before a batch is converted and written."""
-_CHUNK_BYTES = 8 << 20
-"""Payload bytes gathered per topic before a batch is converted (bounds memory whatever the message size)."""
 
 
 def unit_suffix(unit: str) -> str:
@@ -823,10 +903,10 @@ def _role_decoding(path: Path, attachments: Mapping[str, bytes], bus: str) -> _R
     return _RoleDecoding(bus, VectorRoleDecoder(db, rm), tuple((s.role, s.si_unit) for s in rm.roles))
 
 
-def _roles_chunk(rd: _RoleDecoding, frames: GroupChunk) -> GroupChunk | None:
-    """The roles the frames carry, wide: one column per role (``<role>_<unit>``, NaN where a frame does not
-    carry it), ``<role>_ok``; one row per frame that carries a role. Batches of a bus must come in receive
-    order: each is decoded after the previous batch's last frame of each identifier (``rd.carry``)."""
+def _decode_roles(rd: _RoleDecoding, frames: GroupChunk) -> tuple[Any, int, Any]:
+    """(RoleBatch, frames carried from the previous batch, the FrameBatch decoded) of a CAN frame batch: the
+    data frames decoded after the previous batch's last frame of each identifier (``rd.carry``), so that
+    counter checks run on across batches as over the whole bus. Batches of a bus must come in receive order."""
     from drivers.can.checks import CAN_EFF_FLAG
     from drivers.can.vector_decode import FrameBatch
 
@@ -850,6 +930,15 @@ def _roles_chunk(rd: _RoleDecoding, frames: GroupChunk) -> GroupChunk | None:
         _u, last_rev = np.unique(batch.ids[::-1], return_index=True)
         last = np.sort(len(batch) - 1 - last_rev)
         rd.carry = FrameBatch(batch.timestamps_ns[last], batch.ids[last], batch.data[last], batch.dlc[last])
+    return result, n_carry, batch
+
+
+def _roles_chunk(rd: _RoleDecoding, frames: GroupChunk) -> GroupChunk | None:
+    """The roles the frames carry, wide: one column per role (``<role>_<unit>``, NaN where a frame does not
+    carry it), ``<role>_ok``; one row per frame that carries a role (decoded by :func:`_decode_roles`)."""
+    result, n_carry, batch = _decode_roles(rd, frames)
+    c = frames.columns
+    keep = ~(c["error_frame"] | c["remote_frame"])
     rows = np.unique(np.concatenate([np.asarray(s.batch_index, dtype=np.int64) for s in result.roles.values()]
                                     or [np.zeros(0, dtype=np.int64)]))
     rows = rows[rows >= n_carry]  # the carried frames were exported with their own batch
