@@ -23,7 +23,7 @@ two rovers at 20 Hz through the real recorder), written once into ``--cache`` an
 machine may be shared: the floors say how much of each figure is not ``rig``'s. Run from the
 repository root::
 
-    python benchmarks/bench_startup.py [--runs 9] [--cache /tmp/vsc-rig-bench-startup]
+    python benchmarks/bench_startup.py [--runs 9] [--cache /tmp/vsc-rig-bench-startup] [--baseline DIR]
 """
 
 from __future__ import annotations
@@ -74,19 +74,19 @@ def _cpu_s() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
-def _time(argv: list[str], runs: int, env: dict[str, str]) -> tuple[float, float, float]:
+def _time(argv: list[str], runs: int, env: dict[str, str], cwd: Path = ROOT) -> tuple[float, float, float]:
     """(median wall, best wall, median CPU time user+sys) of ``runs`` fresh processes.
 
     The CPU time is what the process itself needed: on a loaded machine it stays close to the wall
     time of a quiet one, which waiting for a core does not add to.
     """
-    subprocess.run(argv, capture_output=True, env=env, cwd=ROOT, check=False)  # warm-up: bytecode, page cache
+    subprocess.run(argv, capture_output=True, env=env, cwd=cwd, check=False)  # warm-up: bytecode, page cache
     times = []
     cpu = []
     for _ in range(runs):
         c0 = _cpu_s()
         t0 = time.perf_counter()
-        proc = subprocess.run(argv, capture_output=True, env=env, cwd=ROOT, check=False)
+        proc = subprocess.run(argv, capture_output=True, env=env, cwd=cwd, check=False)
         times.append(time.perf_counter() - t0)
         cpu.append(_cpu_s() - c0)
         if proc.returncode != 0:
@@ -100,6 +100,10 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=Path("/tmp/vsc-rig-bench-startup"),
                         help="folder for the generated 30-minute session")
     parser.add_argument("--verify-runs", type=int, default=3, help="runs of rig info --verify (default 3)")
+    parser.add_argument("--baseline", type=Path, default=None,
+                        help="a checkout of an earlier version (git archive REV | tar -x -C DIR): its rig --help "
+                             "and rig info are timed too, under the same load (--baseline-runs runs)")
+    parser.add_argument("--baseline-runs", type=int, default=3, help="runs of each baseline row (default 3)")
     parser.add_argument("--no-bytecode-cache", action="store_true",
                         help="keep the environment's bytecode setting (PYTHONDONTWRITEBYTECODE) instead of caching")
     args = parser.parse_args()
@@ -111,7 +115,7 @@ def main() -> None:
         env["PYTHONPYCACHEPREFIX"] = str(args.cache / "pycache")
     py = sys.executable
     size = f"{session.stat().st_size / 1e6:.0f} MB, {SESSION_S / 60:.0f} min, 8 KiB chunks"
-    rows = [
+    rows: list[tuple[str, list[str], float | None, int]] = [
         ("python -c pass", [py, "-c", "pass"], None, args.runs),
         ("python -c 'import typer'", [py, "-c", "import typer"], None, args.runs),
         ("rig --help", [py, "-m", "rig", "--help"], HELP_GOAL_S, args.runs),
@@ -127,6 +131,16 @@ def main() -> None:
         median, best, cpu = _time(argv, runs, env)
         verdict = "" if goal is None else f"  goal <= {goal:.1f} s: {'met' if median <= goal else 'NOT met'}"
         print(f"  {label:<40} N={runs:<3} median {median:6.3f} s  best {best:6.3f} s  CPU {cpu:6.3f} s{verdict}")
+    if args.baseline is not None:
+        old = args.baseline.resolve()
+        old_env = {**env, "PYTHONPATH": str(old)}  # and run from there: `python -m` puts the cwd first
+        if not args.no_bytecode_cache:
+            old_env["PYTHONPYCACHEPREFIX"] = str(args.cache / "pycache-baseline")
+        for label, argv in (("baseline: rig --help", [py, "-m", "rig", "--help"]),
+                            (f"baseline: rig info ({size})", [py, "-m", "rig", "info", str(session)])):
+            median, best, cpu = _time(argv, args.baseline_runs, old_env, cwd=old)
+            print(f"  {label:<40} N={args.baseline_runs:<3} median {median:6.3f} s  best {best:6.3f} s  "
+                  f"CPU {cpu:6.3f} s")
     print(f"load average at the end {os.getloadavg()[0]:.1f}")
 
 
