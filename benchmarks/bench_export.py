@@ -1,4 +1,4 @@
-"""Export a one-hour session to Parquet (issue 17's target: ≤ 30 s, peak RSS ≤ 1 GB), and optionally MDF4/MAT.
+"""Export a one-hour session to Parquet (issue 17's target: ≤ 30 s, peak RSS ≤ 1 GB), and optionally MDF4/MAT/CSV.
 
 The session is the one :mod:`benchmarks.bench_validate` synthesises with the real Recorder (three GNSS
 receivers at 20 Hz with raw bytes, a 500 kbit/s CAN bus at 2000 frames/s with the simulated ECU's frames,
@@ -31,8 +31,8 @@ TARGET_RSS_MB = 1024.0
 
 _CHILD = """
 import sys
-from rig.export import export_mat, export_mdf4, export_parquet
-fn = {"parquet": export_parquet, "mdf4": export_mdf4, "mat": export_mat}[sys.argv[1]]
+from rig.export import export_csv, export_mat, export_mdf4, export_parquet
+fn = {"parquet": export_parquet, "mdf4": export_mdf4, "mat": export_mat, "csv": export_csv}[sys.argv[1]]
 kw = {"validation": False} if sys.argv[1] == "mat" else {}
 report = fn(sys.argv[2], sys.argv[3], **kw)
 print(sum(f.records for f in report.files), sum(f.bytes for f in report.files), len(report.files))
@@ -43,7 +43,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--minutes", type=float, default=60.0)
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "vsc_rig_bench_export")
-    ap.add_argument("--formats", default="parquet", help="Comma-separated: parquet, mdf4, mat.")
+    ap.add_argument("--formats", default="parquet", help="Comma-separated: parquet, mdf4, mat, csv.")
     ap.add_argument("--rebuild", action="store_true")
     args = ap.parse_args()
     cache: Path = args.cache / f"{args.minutes:g}min"
