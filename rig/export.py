@@ -1307,6 +1307,17 @@ def iter_groups(
             if tgt is not None:
                 targets[cid] = tgt
         bad: list[str] = []
+        if not plan.chunks and targets:
+            # messages outside chunks (an unchunked MCAP file, e.g. written by another tool): read whole
+            names = {pend.topic for pend in targets.values()}
+            loose = scan_part(part, want=names.__contains__)
+            for tm in loose.topics.values():
+                pend = by_topic[tm.topic]
+                if pend is not None and len(tm):
+                    pend.log_time.append(np.asarray(tm.log_time, dtype=np.int64))
+                    pend.host.append(np.asarray(tm.publish_time, dtype=np.int64))
+                    pend.data.extend(tm.data)
+                    yield from convert(pend)
         try:
             f = open(part, "rb")  # noqa: SIM115 - closed by the with statement
         except OSError as exc:

@@ -300,3 +300,31 @@ def test_can_counter_checks_run_on_across_batches(ds: Synth) -> None:
     assert np.concatenate([first.columns["yaw_rate_ok"], second.columns["yaw_rate_ok"]]).tolist() == ok.tolist()
     assert np.concatenate([first.time_ns, second.time_ns]).tolist() == whole.time_ns.tolist()
     assert len(second) == 50  # the frame carried from the first batch is not exported twice
+
+
+def test_unchunked_mcap_file_exports(tmp_path: Path) -> None:
+    """Messages outside chunks (an MCAP file written unchunked by another tool) are exported too (the chunk
+    reader has nothing to index there)."""
+    import json
+
+    from mcap.writer import Writer
+
+    import rig.topics as T  # noqa: N812 - short alias
+
+    spec = T.spec_for_topic(T.gnss_bestvel("rx"))[0].schema
+    with open(tmp_path / "hand.mcap", "wb") as f:
+        w = Writer(f, use_chunking=False)
+        w.start()
+        cid = w.register_channel(T.gnss_bestvel("rx"), spec.message_encoding,
+                                 w.register_schema(spec.name, spec.schema_encoding, spec.data))
+        for k in range(5):
+            w.add_message(cid, 10**18 + k, json.dumps({"gps_time_ns": k, "hor_speed_mps": 1.5 * k}).encode(),
+                          10**18 + k, sequence=k)
+        w.finish()
+    report = export_parquet(tmp_path / "hand.mcap", tmp_path / "pq")
+    import pyarrow.dataset as pads
+
+    tbl = pads.dataset(tmp_path / "pq" / "gnss_rx_bestvel", partitioning="hive").to_table()
+    assert [(f.source, f.records) for f in report.files] == [("gnss_rx_bestvel", 5)]
+    assert tbl.column("hor_speed_mps").to_pylist() == [1.5 * k for k in range(5)]
+    assert tbl.column("gps_time_ns").to_pylist() == list(range(5))
