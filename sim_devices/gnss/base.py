@@ -170,7 +170,7 @@ class SimBase(SimReceiver):
                               o.lock_time_s)
                     for o in obs
                 ),
-                obs[0].geometric_range_m,
+                obs[0].pseudorange_m,  # rough range from the receiver's own pseudorange (clocks included)
                 obs[0].range_rate_mps,
                 obs[0].sat.fcn,
             )

@@ -1,10 +1,12 @@
-"""A synthetic, deterministic GPS + GLONASS constellation for plausible observations and DOPs.
+"""A synthetic, deterministic GPS + GLONASS constellation: orbits, satellite clocks, geometry.
 
-Circular orbits with the real constellations' radius, inclination and plane layout (GPS: 24
-satellites in 6 planes at 55°; GLONASS: 24 in 3 planes at 64.8°, with the real frequency-channel
-pattern), Earth rotation included, no perturbations. Good enough for observation messages that
-a decoder accepts, satellite counts that change as the car drives, and DOPs of the right size; not
-for positioning.
+Circular Keplerian orbits with the real constellations' radius, inclination and plane layout (GPS:
+24 satellites in 6 planes at 55°; GLONASS: 24 in 3 planes at 64.8°, with the real
+frequency-channel pattern), Earth rotation included, no perturbations; each satellite clock has a
+constant offset. The GPS orbits are exactly the IS-GPS-200 broadcast-ephemeris model with e = 0,
+Δn = 0, ω = 0, no harmonic terms and OMEGA_DOT = 0 (the orbital planes are fixed in inertial
+space), so :mod:`sim_devices.gnss.ephemeris` can broadcast them without approximation and a
+post-processing engine positions with them.
 """
 
 from __future__ import annotations
@@ -12,18 +14,24 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import Enum
+from fractions import Fraction
 
 import numpy as np
 import numpy.typing as npt
 import pymap3d
 
-__all__ = ["SPEED_OF_LIGHT", "Constellation", "GnssSystem", "SatObservation", "Satellite", "dops"]
+from vsccore.gpstime import NS_PER_S
+
+__all__ = ["GPS_MU", "OMEGA_E", "SPEED_OF_LIGHT", "Constellation", "GnssSystem", "SatObservation", "Satellite", "dops"]
 
 FloatArray = npt.NDArray[np.float64]
 
 SPEED_OF_LIGHT = 299_792_458.0
-_MU = 3.986005e14
-_OMEGA_E = 7.2921151467e-5
+#: IS-GPS-200 gravitational constant (m³/s²) and Earth rotation rate (rad/s).
+GPS_MU = 3.986005e14
+OMEGA_E = 7.2921151467e-5
+_MU = GPS_MU
+_OMEGA_E = OMEGA_E
 #: GLONASS frequency channel number of slots 1..24 (antipodal satellites share a channel).
 _GLONASS_FCN = (1, -4, 5, 6, 1, -4, 5, 6, -2, -7, 0, -1, -2, -7, 0, -1, 4, -3, 3, 2, 4, -3, 3, 2)
 
@@ -105,18 +113,71 @@ class Constellation:
         self._arg0 = np.array([o.arg0_rad for o in orbits])
         self._n = np.sqrt(_MU / self._radius**3)
 
-    def ecef(self, t_gps_s: float) -> FloatArray:
-        """ECEF positions (m), shape (n_sat, 3), at GPS time ``t_gps_s`` (s since the GPS epoch)."""
-        u = self._arg0 + self._n * t_gps_s  # |n t| ~ 2e5 rad: float64 keeps it to ~1e-11 rad
+        # satellite clock offsets (s): a fixed, deterministic ±50 µs spread
+        self._clock_s = np.array([((7 * i) % 21 - 10) * 5.0e-6 for i in range(len(sats))])
+        self._index = {sat: i for i, sat in enumerate(self.satellites)}
+        self._day_phase: dict[int, tuple[FloatArray, float]] = {}
+
+    def index(self, sat: Satellite) -> int:
+        """Row of ``sat`` in :meth:`ecef` results."""
+        return self._index[sat]
+
+    def elements(self, sat: Satellite) -> tuple[float, float, float, float, float]:
+        """(radius m, inclination rad, RAAN rad, argument of latitude at t = 0 rad, mean motion rad/s).
+
+        The orbit: argument of latitude u(t) = arg0 + n t; ascending node longitude in ECEF
+        Ω(t) = RAAN − ω_E t (t in s since the GPS epoch).
+        """
+        i = self._index[sat]
+        return (float(self._radius[i]), float(self._inc[i]), float(self._raan[i]), float(self._arg0[i]),
+                float(self._n[i]))
+
+    def clock_offset_s(self, sat: Satellite) -> float:
+        """Satellite clock offset from GPS time (s), constant."""
+        return float(self._clock_s[self._index[sat]])
+
+    def phase_at_day(self, day: int) -> tuple[FloatArray, float]:
+        """(n·T mod 2π per satellite, ω_E·T mod 2π) at T = ``day`` × 86400 s, accurate to ~1e-16 rad.
+
+        Exact rational arithmetic on the float64 rates, so that a phase at ~1.4e9 s keeps the
+        precision that a product in float64 would lose (~3e-11 rad, ~1 mm on the orbit).
+        """
+        cached = self._day_phase.get(day)
+        if cached is None:
+            t = Fraction(day * 86400)
+            two_pi = Fraction(2.0 * math.pi)
+            n_phase = np.array([float((Fraction(float(n)) * t) % two_pi) for n in self._n])
+            cached = (n_phase, float((Fraction(_OMEGA_E) * t) % two_pi))
+            if len(self._day_phase) > 64:
+                self._day_phase.clear()
+            self._day_phase[day] = cached
+        return cached
+
+    def ecef_at(self, t_gps_ns: int, dt_s: float | FloatArray = 0.0) -> FloatArray:
+        """ECEF positions (m), shape (n_sat, 3), at GPS time ``t_gps_ns`` + ``dt_s``.
+
+        ``t_gps_ns`` is integer ns since the GPS epoch; ``dt_s`` (one offset, or one per satellite:
+        signal transmission times differ by satellite) is added in double precision.
+        """
+        day = t_gps_ns // (86400 * NS_PER_S)
+        r = (t_gps_ns - day * 86400 * NS_PER_S) / NS_PER_S + np.broadcast_to(np.asarray(dt_s, dtype=np.float64),
+                                                                               self._n.shape)
+        n_phase, e_phase = self.phase_at_day(int(day))
+        u = self._arg0 + n_phase + self._n * r
+        omega = self._raan - e_phase - _OMEGA_E * r  # orbital planes fixed in inertial space
         x_p = self._radius * np.cos(u)
         y_p = self._radius * np.sin(u)
         ci, si = np.cos(self._inc), np.sin(self._inc)
-        omega = self._raan - _OMEGA_E * (t_gps_s % 86164.0905)
         co, so = np.cos(omega), np.sin(omega)
         x = x_p * co - y_p * ci * so
         y = x_p * so + y_p * ci * co
         z = y_p * si
         return np.stack([x, y, z], axis=1)
+
+    def ecef(self, t_gps_s: float) -> FloatArray:
+        """ECEF positions (m), shape (n_sat, 3), at GPS time ``t_gps_s`` (s since the GPS epoch)."""
+        whole = math.floor(t_gps_s)
+        return self.ecef_at(whole * NS_PER_S, t_gps_s - whole)
 
     def visible(
         self, lat_deg: float, lon_deg: float, height_m: float, t_gps_s: float, mask_deg: float = 5.0

@@ -241,6 +241,8 @@ class SimReceiver(abc.ABC):
         self._solutions: OrderedDict[int, Solution] = OrderedDict()
         self._geometry_cache: tuple[int, tuple[SatObservation, ...]] | None = None
         self._logs_paused = False
+        #: True while :meth:`message` builds a log requested ONNEW/ONCHANGED (vs. ONTIME …).
+        self.emitting_on_change = False
         self._unresponsive = False
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -376,8 +378,13 @@ class SimReceiver(abc.ABC):
         """Solution type and differential age at a GPS time (no corrections: SINGLE)."""
         return RtkState(PositionType.SINGLE, 0.0, "")
 
-    def message(self, entry_name: str, fmt: LogFormat, t_gps_ns: int, batch: Sequence[str]) -> Body | bytes | None:
-        """Body (or raw bytes written as they are) of a log at data time ``t_gps_ns``; None = nothing."""
+    def message(
+        self, entry_name: str, fmt: LogFormat, t_gps_ns: int, batch: Sequence[str]
+    ) -> Body | bytes | list[Body] | None:
+        """Body (or raw bytes written as they are, or one body per log) of a log at data time ``t_gps_ns``.
+
+        None = nothing. :attr:`emitting_on_change` says whether the log fires ONNEW/ONCHANGED.
+        """
         return self._common_message(entry_name, fmt, t_gps_ns)
 
     def next_event_ns(self, after_ns: int) -> int | None:
@@ -707,6 +714,7 @@ class SimReceiver(abc.ABC):
             self._emit(e, t_ns, names)
 
     def _emit(self, entry: _LogEntry, t_ns: int, batch: Sequence[str]) -> None:
+        self.emitting_on_change = entry.trigger in (Trigger.ONNEW, Trigger.ONCHANGED)
         body = self.message(entry.name, entry.fmt, t_ns, batch)
         if body is None or self._logs_paused:
             return
@@ -714,7 +722,14 @@ class SimReceiver(abc.ABC):
         if st is None or st.pty is None:  # a port with nothing wired to it swallows its output
             self.logs_unrouted += 1
             return
-        data = body if isinstance(body, bytes) else self._encode(entry, body, t_ns)
+        if isinstance(body, bytes):
+            data = body
+        elif isinstance(body, list):  # one log per satellite (ephemerides)
+            data = b"".join(self._encode(entry, b, t_ns) for b in body)
+            if not data:
+                return
+        else:
+            data = self._encode(entry, body, t_ns)
         backlog_s = (st.pending_bytes + len(data)) * 10 / st.baud
         if backlog_s > _MAX_PORT_BACKLOG_S:  # more logged than the baud rate carries: the port overruns
             st.bytes_overrun += len(data)

@@ -8,8 +8,11 @@ which sets the solution type of every position log; a frame whose CRC fails neve
 
 Logs: BESTPOS, BESTVEL, BESTXYZ, TIME, PSRDOP, MARKPOS, MARKTIME (MARK1 events at the
 :class:`~sim_devices.gnss.timebase.SyncSchedule`'s pulse times plus the EVENTINCONTROL time bias;
-MARK2POS/MARK2TIME accepted, never fired), RANGECMP (raw), VERSION (raw), GPGGA, and with a
-secondary antenna (a dual-antenna receiver) HEADING and HEADING2.
+MARK2POS/MARK2TIME accepted, never fired), RANGECMP (raw observations,
+:mod:`sim_devices.gnss.observations`), GPSEPHEM (one log per visible GPS satellite; ONCHANGED
+sends a satellite's set when it is new to the receiver or its IODE changed, other triggers send all;
+:mod:`sim_devices.gnss.ephemeris`), VERSION (raw), GPGGA, and with a secondary antenna (a
+dual-antenna receiver) HEADING and HEADING2.
 """
 
 from __future__ import annotations
@@ -20,10 +23,12 @@ from dataclasses import replace
 from pathlib import Path
 
 from drivers.novatel import Body, BodyFormat, ClockModelStatus, Heading, Heading2, MarkTime, RawBody
+from drivers.novatel.rawobs import encode_gpsephem
 from sim_devices.gnss import bodies
 from sim_devices.gnss.antenna import AntennaState, TruthAntenna
 from sim_devices.gnss.commands import LogFormat, SimpleCommand
-from sim_devices.gnss.constellation import Constellation
+from sim_devices.gnss.constellation import Constellation, GnssSystem
+from sim_devices.gnss.ephemeris import gps_ephemeris
 from sim_devices.gnss.error_model import GnssErrorParams, RtkParams, RtkState, RtkStateMachine, carries_gps_epoch
 from sim_devices.gnss.observations import ObservationGenerator
 from sim_devices.gnss.rawlogs import rangecmp_ascii, rangecmp_binary
@@ -122,6 +127,7 @@ class SimRover(SimReceiver):
         self.corrections_received = 0
         self._mark_time_ns: int | None = None
         self._last_mark_accepted: int | None = None
+        self._ephemeris_sent: dict[int, int] = {}  # PRN -> IODE last sent ONCHANGED
 
     @property
     def correction_port_path(self) -> str:
@@ -131,7 +137,7 @@ class SimRover(SimReceiver):
     # --- hooks ----------------------------------------------------------------------------------
 
     def known_logs(self) -> frozenset[str]:
-        names = set(super().known_logs()) | {"MARKPOS", "MARKTIME", "MARK2POS", "MARK2TIME", "RANGECMP"}
+        names = set(super().known_logs()) | {"MARKPOS", "MARKTIME", "MARK2POS", "MARK2TIME", "RANGECMP", "GPSEPHEM"}
         if self.secondary is not None:
             names |= {"HEADING", "HEADING2"}
         return frozenset(names)
@@ -178,7 +184,9 @@ class SimRover(SimReceiver):
         self._last_mark_accepted = t_gps_ns
         return ["MARKPOS", "MARKTIME"]
 
-    def message(self, entry_name: str, fmt: LogFormat, t_gps_ns: int, batch: Sequence[str]) -> Body | bytes | None:
+    def message(
+        self, entry_name: str, fmt: LogFormat, t_gps_ns: int, batch: Sequence[str]
+    ) -> Body | bytes | list[Body] | None:
         if entry_name == "BESTVEL" and self.velocity_latency_s > 0.0:
             return bodies.bestvel(self._delayed(t_gps_ns), self.velocity_latency_s)
         if entry_name == "MARKPOS":
@@ -202,7 +210,23 @@ class SimRover(SimReceiver):
             if fmt is LogFormat.BINARY:
                 return RawBody(rangecmp_binary(obs), BodyFormat.BINARY)
             return RawBody(rangecmp_ascii(obs), BodyFormat.ASCII)
+        if entry_name == "GPSEPHEM":
+            return self._ephemerides(fmt, t_gps_ns)
         return self._common_message(entry_name, fmt, t_gps_ns)
+
+    def _ephemerides(self, fmt: LogFormat, t_gps_ns: int) -> list[Body]:
+        out: list[Body] = []
+        body_fmt = BodyFormat.BINARY if fmt is LogFormat.BINARY else BodyFormat.ASCII
+        for geo in self.observations.geometry(self.antenna_state(t_gps_ns), t_gps_ns):
+            if geo.sat.system is not GnssSystem.GPS:
+                continue
+            eph = gps_ephemeris(self.constellation, geo.sat, t_gps_ns)
+            if self.emitting_on_change:
+                if self._ephemeris_sent.get(eph.prn) == eph.iode1:
+                    continue
+                self._ephemeris_sent[eph.prn] = eph.iode1
+            out.append(encode_gpsephem(eph, body_fmt))
+        return out
 
     def _delayed(self, t_gps_ns: int) -> Solution:
         sol = self.solution(t_gps_ns)

@@ -69,7 +69,7 @@ def _satellites(system: GnssSystem) -> list[MsmSatellite]:
     return [
         MsmSatellite(prn, tuple(MsmSignal(o.msm_signal_id, o.pseudorange_m, o.phaserange_m, o.range_rate_mps,
                                           o.cnr_dbhz, 120.0) for o in sigs),
-                     sigs[0].geometric_range_m, sigs[0].range_rate_mps, sigs[0].sat.fcn)
+                     sigs[0].pseudorange_m, sigs[0].range_rate_mps, sigs[0].sat.fcn)
         for prn, sigs in sorted(by_prn.items())
     ]
 
