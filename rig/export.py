@@ -39,7 +39,7 @@ import numpy as np
 import numpy.typing as npt
 
 import rig.topics as T  # noqa: N812 - the module is used as a namespace of topic names
-from rig.recorder.reader import PartScan, ProblemKind, find_parts, scan_part
+from rig.recorder.reader import PartScan, find_parts, scan_part
 from vsccore.errors import AnalysisError, ConfigError, SessionFileError
 
 __all__ = [
@@ -123,7 +123,8 @@ def _is_raw_stream(topic: str) -> bool:
 
 
 def _scan_parts(path: Path | str, want: Callable[[str], bool]) -> Iterable[tuple[int, int, PartScan, list[str]]]:
-    """(index, count, scan, warnings) of every part in order; a truncated last part is tolerated."""
+    """(index, count, scan, warnings) of every part in order; a truncated last part and damaged chunks are
+    tolerated (every intact chunk is read; the warnings name the damage), a truncated earlier part is not."""
     parts = find_parts(path)
     for i, p in enumerate(parts):
         where = f"{p} (part {i + 1} of {len(parts)})"
@@ -131,13 +132,11 @@ def _scan_parts(path: Path | str, want: Callable[[str], bool]) -> Iterable[tuple
             scan = scan_part(p, want=want)
         except SessionFileError as exc:
             raise SessionFileError(f"{where}: {exc}") from exc
-        notes: list[str] = []
-        if scan.problem is not None:
-            if scan.problem_kind is ProblemKind.TRUNCATED and i == len(parts) - 1:
-                notes.append(f"{where}: {scan.problem}; exported up to its last complete record")
-                log.warning("%s", notes[-1])
-            else:
-                raise SessionFileError(f"{where}: {scan.problem}")
+        if scan.truncation is not None and i < len(parts) - 1:
+            raise SessionFileError(f"{where}: {scan.problem}")
+        notes = _damage_notes(where, scan)
+        for note in notes:
+            log.warning("%s", note)
         yield i, len(parts), scan, notes
 
 

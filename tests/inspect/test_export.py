@@ -219,3 +219,33 @@ def test_csv_streams_the_can_roles_and_optical_samples(tmp_path: Path, monkeypat
         assert len(got) == len(s) and [r["ok"] == "1" for r in got] == s.ok.tolist()
         v = np.asarray([float(r["value"]) if r["value"] else np.nan for r in got])
         assert np.array_equal(v, s.values, equal_nan=True)
+
+
+def test_raw_export_over_a_damaged_chunk_carries_on(synth: Synth, tmp_path: Path) -> None:
+    """A bit flip in a chunk of raw reads: every intact chunk's bytes are exported, the damage is named and the
+    lost reads show as a sequence break (was: SessionFileError for the whole export)."""
+    import shutil
+
+    from mcap.reader import make_reader
+
+    parts = find_parts(synth.base)
+    for p in parts:
+        shutil.copy(p, tmp_path / p.name)
+    with open(parts[0], "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    rx_topic = T.gnss_raw("rover_a")
+    k, ci = [(i, ci) for i, ci in enumerate(summary.chunk_indexes) if any(
+        summary.channels[c].topic == rx_topic for c in ci.message_index_offsets)][1]  # reads before and after
+    damaged = tmp_path / parts[0].name
+    raw = bytearray(damaged.read_bytes())
+    raw[ci.chunk_start_offset + ci.chunk_length - 30] ^= 0x10
+    damaged.write_bytes(bytes(raw))
+    base = tmp_path / synth.base.name
+    report = export_raw_gnss(base, tmp_path / "out")
+    assert any(f"damaged chunk {k} " in w and rx_topic in w for w in report.warnings), report.warnings
+    expected = b"".join(d for p in find_parts(base) for d in scan_part(p, want=rx_topic.__eq__).topics[rx_topic].data)
+    got = (tmp_path / "out" / "rover_a.gps").read_bytes()
+    assert got == expected and len(got) < len(b"".join(synth.reads["rover_a"]))
+    (f,) = [f for f in report.files if f.source == rx_topic]
+    assert f.sequence_breaks >= 1 and any("sequence numbers break" in w for w in report.warnings)
