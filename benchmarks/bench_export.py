@@ -69,7 +69,7 @@ def main() -> None:
             wall = time.perf_counter() - t0
             if res.returncode != 0:
                 raise SystemExit(f"{fmt} export failed:\n{res.stderr}")
-            rows, nbytes, nfiles = (int(x) for x in res.stdout.split())
+            rows, nbytes, nfiles = (int(x) for x in res.stdout.splitlines()[-1].split())  # asammdf prints too
             after = resource.getrusage(resource.RUSAGE_CHILDREN)
             cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
             rss_mb = after.ru_maxrss / 1024.0  # Linux: kB; the largest child so far (each format runs alone)
