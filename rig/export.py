@@ -16,9 +16,16 @@ the ports delivered, across every part of the session:
 Parts are read one at a time (memory stays at one part's raw data). A message's sequence number
 runs on per topic across parts; a break in the sequence (lost or repeated reads) is reported.
 
-:func:`export_csv` writes decoded tables through :mod:`rig.dataset`: GNSS logs per receiver, CAN
-roles per bus (with the DBC and role map attached to the session), optical-sensor topics and the
-event list.
+:func:`export_csv` writes decoded tables: GNSS logs per receiver and the event list through
+:mod:`rig.dataset`, CAN roles per bus (with the DBC and role map attached to the session) and
+optical-sensor topics streamed batch by batch.
+
+:func:`export_parquet`, :func:`export_mdf4` and :func:`export_mat` read the session through
+:func:`iter_groups`: each part's chunks are located from its summary (CRC-checked) and read one at a
+time; only the exported channels are taken out of a chunk, through its MessageIndex records, so raw
+byte streams are never copied out; JSON topics are parsed in bulk by Arrow's JSON reader, CAN and DAQ
+blocks as numpy record arrays. A damaged chunk or an unfinished part is skipped with a warning (the
+session reader's :mod:`rig.recorder.reader` describes it) and every intact chunk is exported.
 """
 
 from __future__ import annotations
