@@ -75,6 +75,8 @@ COMMANDS: tuple[Command, ...] = (
             "Accelerometer and gyroscope calibration: bias, scale factors and misalignment (measured = M·true + b)."),
     Command("validate", "rig.cli.analysis_cmd", None,
             "Score the VSC sideslip estimate of SESSION against the GNSS (and optical) reference."),
+    Command("campaign", "rig.cli.campaign_cmd", "campaign",
+            "Validate every session of a campaign as Dask tasks: one Parquet metrics table and an HTML trend report."),
     Command("rollover", "rig.cli.analysis_cmd", None,
             "Load-transfer ratio from the CAN lateral acceleration and the roll model, predicted 1, 2 and 3 s "
             "ahead."),

@@ -8,7 +8,7 @@ example configuration ``rig/examples/sim.toml`` and ``--set``-style overrides, o
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -128,6 +128,7 @@ def write_truth_session(
     can_roles: bool = True,
     seed: int = 7,
     swa_offset_deg: float = 0.0,
+    vsc_beta: Callable[[GroundTruth, np.ndarray], np.ndarray] | None = None,
 ) -> Path:
     """Record a session of ``truth`` (t = 0 at GPS time G0) with the real Recorder; returns its base path.
 
@@ -136,7 +137,8 @@ def write_truth_session(
     simulated receivers, 30 % white),
     BESTVEL, TIME; CAN at 50 Hz: ESC_SensorCluster (yaw_rate, lat_accel) and SAS_Steering (swa)
     from the truth (SAS zero error ``swa_offset_deg`` added); ``/sim/truth``. The receivers' antennas follow
-    ``cfg.receivers``.
+    ``cfg.receivers``. ``vsc_beta(truth, t_s)``: the VSC's sideslip estimate (rad) at the CAN times, sent as
+    VSC_Status (role ``vsc_beta_estimate``) beside the sensor cluster.
     """
     rng = np.random.default_rng(seed)
     db = load_dbc(DBC)
@@ -202,7 +204,8 @@ def write_truth_session(
             r = np.interp(tc, truth.t, truth.yaw_rate)
             ay = np.interp(tc, truth.t, truth.ay_meas)
             swa = np.interp(tc, truth.t, truth.swa) + math.radians(swa_offset_deg)
-            ids = {m: db.get_message_by_name(m).frame_id for m in ("ESC_SensorCluster", "SAS_Steering")}
+            ids = {m: db.get_message_by_name(m).frame_id for m in ("ESC_SensorCluster", "SAS_Steering", "VSC_Status")}
+            beta_est = None if vsc_beta is None else np.asarray(vsc_beta(truth, tc), dtype=float)
             rows: list[tuple[int, int, int, bytes]] = []
             for i in range(kc.size):
                 rows.append((int(gc[i]), int(hc[i]), ids["ESC_SensorCluster"], encode_role_frame(
@@ -210,6 +213,9 @@ def write_truth_session(
                     counter=i)))
                 rows.append((int(gc[i]), int(hc[i]) + 1000, ids["SAS_Steering"], encode_role_frame(
                     db, rolemap, "SAS_Steering", {"swa": float(swa[i])}, counter=i)))
+                if beta_est is not None:
+                    rows.append((int(gc[i]), int(hc[i]) + 2000, ids["VSC_Status"], encode_role_frame(
+                        db, rolemap, "VSC_Status", {"vsc_beta_estimate": float(beta_est[i])}, counter=i)))
             for b in range(0, len(rows), 100):
                 blk = rows[b: b + 100]
                 m = len(blk)
