@@ -16,7 +16,7 @@ from rig.live import LIVE_TOPICS, LiveOptions
 from rig.live.layout import layout_json, message_paths, session_layout
 from rig.recorder.reader import find_parts
 from tests.live.conftest import run_live
-from tests.live.wsclient import collect
+from tests.live.wsclient import Received, collect
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "rig" / "examples" / "foxglove-layout.json"
 
@@ -36,6 +36,10 @@ def _split(path: str, topics: set[str]) -> tuple[str, list[str]]:
     raise AssertionError(f"layout names {path!r}: no such topic recorded or served live ({sorted(topics)})")
 
 
+def _has_ltr_value(got: Received) -> bool:
+    return any(json.loads(p).get("ltr") is not None for _ns, p in got.messages.get("/live/ltr", ()))
+
+
 def test_every_layout_path_exists_in_a_recorded_session_or_the_live_channels(tmp_path: Path) -> None:
     doc = json.loads(layout_json(session_layout()))
     paths = sorted(set(message_paths(doc)))
@@ -45,7 +49,8 @@ def test_every_layout_path_exists_in_a_recorded_session_or_the_live_channels(tmp
     # LTR needs 2 s of a_y history before its first value: read the live channels for a few seconds
     counts = {"/live/sideslip": 60, "/live/ltr": 8, "/live/status": 3, "/live/log": 1}
     for run in run_live(tmp_path, LiveOptions(port=0), drive="step_steer:lead_s=1,hold_s=8"):
-        got = collect(run.view.ws_url, live_topics, counts=counts, timeout_s=60.0)
+        # under load the first LTR values can come late: read until one has arrived, not a fixed count
+        got = collect(run.view.ws_url, live_topics, counts=counts, timeout_s=90.0, until=_has_ltr_value)
         for t in live_topics:
             assert got.messages.get(t), f"live channel {t} sent nothing"
         for t, msgs in got.messages.items():

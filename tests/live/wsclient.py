@@ -11,6 +11,7 @@ import json
 import struct
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,7 +34,7 @@ class Received:
 
 
 async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_s: float,
-                   stop: threading.Event | None) -> Received:
+                   stop: threading.Event | None, until: Callable[[Received], bool] | None = None) -> Received:
     out = Received()
     subs: dict[int, str] = {}
     deadline = time.monotonic() + timeout_s
@@ -41,7 +42,9 @@ async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_
         assert ws.subprotocol in SUBPROTOCOLS
         out.subprotocol = str(ws.subprotocol)
         while True:
-            if all(len(out.messages.get(t, ())) >= counts.get(t, 1) for t in topics):
+            if all(len(out.messages.get(t, ())) >= counts.get(t, 1) for t in topics) and (
+                until is None or until(out)
+            ):
                 return out
             left = deadline - time.monotonic()
             if left <= 0 or (stop is not None and stop.is_set()):
@@ -71,7 +74,7 @@ async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_
 
 
 def collect(url: str, topics: list[str], counts: dict[str, int] | None = None, timeout_s: float = 30.0,
-            stop: threading.Event | None = None) -> Received:
+            stop: threading.Event | None = None, until: Callable[[Received], bool] | None = None) -> Received:
     """Connect, subscribe to ``topics`` as they are advertised, and read until each has ``counts[topic]``
-    messages (default 1), ``timeout_s`` passed or ``stop`` is set."""
-    return asyncio.run(_collect(url, topics, counts or {}, timeout_s, stop))
+    messages (default 1) and ``until`` (if given) holds, ``timeout_s`` passed or ``stop`` is set."""
+    return asyncio.run(_collect(url, topics, counts or {}, timeout_s, stop, until))
