@@ -75,6 +75,9 @@ COMMANDS: tuple[Command, ...] = (
             "Accelerometer and gyroscope calibration: bias, scale factors and misalignment (measured = M·true + b)."),
     Command("validate", "rig.cli.analysis_cmd", None,
             "Score the VSC sideslip estimate of SESSION against the GNSS (and optical) reference."),
+    Command("ppk", "rig.cli.ppk_cmd", "ppk",
+            "Post-process the rovers' raw observations against the base corrections with RTKLIB (kinematic, "
+            "combined)."),
     Command("campaign", "rig.cli.campaign_cmd", "campaign",
             "Validate every session of a campaign as Dask tasks: one Parquet metrics table and an HTML trend report."),
     Command("rollover", "rig.cli.analysis_cmd", None,

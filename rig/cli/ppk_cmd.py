@@ -1,0 +1,38 @@
+"""``rig ppk``: post-processed kinematic solutions of a recorded session with RTKLIB (:mod:`rig.ppk`).
+
+    rig ppk sessions/2026-05-04_track [--rover rover_a --rover rover_b] [--out FILE] [--keep DIR]
+
+Writes ``<session>.ppk.parquet`` (read by ``rig validate`` and the other analyses) and prints each rover's
+fix ratio. Exit status 0 on success, 2 on an error (missing logs, RTKLIB not installed, a failed RTKLIB run).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def ppk(
+    session: Annotated[Path, typer.Argument(help="The recorded session (its base name or any part).")],
+    rover: Annotated[list[str] | None, typer.Option("--rover", help="Rover receiver to process (repeat); "
+                                                     "default: every rover of the session.")] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="Side file to write (default: <session>.ppk.parquet).")]
+    = None,
+    keep: Annotated[Path | None, typer.Option("--keep", help="Keep RTKLIB's inputs and outputs (RINEX, .pos) in "
+                                              "this directory.")] = None,
+    timeout_s: Annotated[float, typer.Option("--timeout", help="Seconds each RTKLIB call may take.", min=1.0)]
+    = 600.0,
+    mask_deg: Annotated[float, typer.Option("--mask-deg", help="Elevation mask (deg).", min=0.0, max=60.0)] = 10.0,
+) -> None:
+    """Post-process the rovers' raw observations against the base corrections with RTKLIB (kinematic, combined)."""
+    from rig.ppk import run_ppk
+
+    res = run_ppk(session, rovers=rover, out=out, work_dir=keep, timeout_s=timeout_s, elevation_mask_deg=mask_deg)
+    for w in res.warnings:
+        typer.echo(f"warning: {w}", err=True)
+    for r in res.rovers:
+        typer.echo(f"{r.rover}: fix ratio {r.fix_ratio:.1%} ({r.fixed} of {r.observation_epochs} epochs fixed, "
+                   f"{r.epochs} solved, median {r.satellites_median:g} satellites)")
+    typer.echo(f"wrote {res.out}")

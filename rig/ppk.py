@@ -1,0 +1,424 @@
+"""Post-processed kinematic (PPK) solutions of a recorded session with RTKLIB (``rig ppk``).
+
+Per rover: the session's raw streams are exported (:func:`rig.export.export_raw_gnss`), the rover's
+NovAtel stream (RANGECMPB) and the relayed base corrections (RTCM3 MSM + 1005/1006) are turned into
+RINEX observations by Debian RTKLIB's ``convbin``, a RINEX 3 GPS navigation file is written from the
+rover's decoded GPSEPHEM logs (RTKLIB 2.4.3 reads GPS ephemerides from RAWEPHEMB only; see
+docs/decisions/0004-ppk-with-debian-rtklib.md), and ``rnx2rtkp`` solves in kinematic mode, forward
+and backward combined, L1+L2, against the base position the corrections carry (RTCM 1005/1006).
+
+The solutions of every rover go into one side file next to the session, ``<base>.ppk.parquet``
+(:func:`ppk_file_path`, :data:`PPK_COLUMNS`), which :mod:`rig.sessiondata` reads. RTKLIB runs as
+subprocesses with timeouts: a crash or a hang fails one call with the command, its exit status and
+its stderr named, never the ``rig`` process.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+import re
+import shutil
+import subprocess
+import tempfile
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from drivers.novatel import FrameReader
+from drivers.novatel.rawobs import GpsEphem, decode_gpsephem
+from vsccore.errors import AnalysisError, DecodeError, RigError, SessionFileError
+
+__all__ = [
+    "PPK_COLUMNS",
+    "PpkQuality",
+    "PpkRover",
+    "PpkRun",
+    "RtklibMissingError",
+    "ppk_file_path",
+    "read_ppk_file",
+    "run_ppk",
+    "write_rinex_nav",
+]
+
+RTKLIB_PACKAGE = "rtklib"
+"""The Debian package with ``convbin`` and ``rnx2rtkp``."""
+TOOLS = ("convbin", "rnx2rtkp")
+DEFAULT_TIMEOUT_S = 600.0
+"""Per RTKLIB call (rnx2rtkp on an hour at 20 Hz takes minutes, not tens of minutes)."""
+ELEVATION_MASK_DEG = 10.0
+PPK_COLUMNS = ("rover", "gps_time_ns", "time_ns", "lat_deg", "lon_deg", "height_m", "q", "ns",
+               "sdn_m", "sde_m", "sdu_m", "ratio")
+"""Columns of the side file: GPS time (ns since the GPS epoch), UTC (ns since the Unix epoch, with the
+session's leap seconds), WGS84 latitude/longitude (deg) and ellipsoidal height, RTKLIB's quality flag
+``q`` (:class:`PpkQuality`), satellites, standard deviations (m) and the ambiguity ratio."""
+
+_GPS_EPOCH = dt.datetime(1980, 1, 6)
+_NS = 1_000_000_000
+_WEEK_NS = 7 * 86400 * _NS
+_GPS_UNIX_OFFSET_NS = 315_964_800 * _NS
+
+
+class PpkQuality:
+    """RTKLIB's solution quality flag (``Q`` of a ``.pos`` file)."""
+
+    FIX = 1
+    FLOAT = 2
+    SBAS = 3
+    DGPS = 4
+    SINGLE = 5
+    PPP = 6
+
+
+class RtklibMissingError(RigError, OSError):
+    """RTKLIB's command-line tools are not installed (the message names the Debian package)."""
+
+
+@dataclass(frozen=True, slots=True)
+class PpkRover:
+    """One rover's PPK run."""
+
+    rover: str
+    epochs: int
+    """Epochs with a solution."""
+    fixed: int
+    """Epochs with Q = 1 (ambiguities fixed)."""
+    observation_epochs: int
+    """RANGECMP logs in the rover's stream."""
+    satellites_median: float
+
+    @property
+    def fix_ratio(self) -> float:
+        """Fixed epochs / observation epochs (0 when there were none)."""
+        return self.fixed / self.observation_epochs if self.observation_epochs else 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class PpkRun:
+    """What ``rig ppk`` did: the side file and each rover's figures."""
+
+    out: Path
+    rovers: tuple[PpkRover, ...]
+    warnings: tuple[str, ...] = ()
+
+
+def ppk_file_path(session_path: Path | str) -> Path:
+    """``<session base>.ppk.parquet`` (next to the parts ``<base>.NNN.mcap``)."""
+    from rig.recorder import find_parts, session_base
+
+    p = Path(session_path)
+    try:
+        base = session_base(find_parts(p)[0])
+    except SessionFileError:
+        base = session_base(p)
+    return base.with_name(f"{base.name}.ppk.parquet")
+
+
+def _tools() -> dict[str, str]:
+    found = {t: shutil.which(t) for t in TOOLS}
+    missing = [t for t, p in found.items() if p is None]
+    if missing:
+        raise RtklibMissingError(
+            f"RTKLIB's {' and '.join(missing)} not found on PATH: install Debian's {RTKLIB_PACKAGE!r} package "
+            f"(apt-get install {RTKLIB_PACKAGE})"
+        )
+    return {t: p for t, p in found.items() if p is not None}
+
+
+def _run(cmd: Sequence[str], what: str, timeout_s: float, cwd: Path) -> subprocess.CompletedProcess[str]:
+    try:
+        res = subprocess.run(list(cmd), capture_output=True, text=True, timeout=timeout_s, check=False, cwd=cwd)
+    except subprocess.TimeoutExpired as exc:
+        raise AnalysisError(f"{what}: {' '.join(cmd)} did not finish within {timeout_s:g} s") from exc
+    except OSError as exc:
+        raise RtklibMissingError(f"{what}: cannot run {cmd[0]} ({exc}); install Debian's {RTKLIB_PACKAGE!r} "
+                                 "package") from exc
+    if res.returncode != 0:
+        tail = (res.stderr or res.stdout).strip().splitlines()[-3:]
+        raise AnalysisError(f"{what}: {' '.join(cmd)} exited with status {res.returncode}: {' / '.join(tail)}")
+    return res
+
+
+# --- the rover's stream ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class _RoverStream:
+    rangecmp: int
+    ephemerides: tuple[GpsEphem, ...]
+    first_gps_ns: int | None
+
+
+def _scan_rover(path: Path, rover: str) -> _RoverStream:
+    ephs: dict[tuple[int, int, float], GpsEphem] = {}
+    n = 0
+    first: int | None = None
+    with open(path, "rb") as f:
+        for fr in FrameReader(f):
+            if fr.log is None:
+                continue
+            name = fr.log.header.message_name
+            if name == "RANGECMP":
+                n += 1
+                if first is None:
+                    first = fr.log.header.gps_ns
+            elif name == "GPSEPHEM":
+                try:
+                    e = decode_gpsephem(fr.log.body)  # type: ignore[arg-type]
+                except DecodeError as exc:
+                    raise AnalysisError(f"{path}: rover {rover}: undecodable GPSEPHEM log: {exc}") from exc
+                ephs[(e.prn, e.iode1, e.toe_s)] = e
+    return _RoverStream(n, tuple(ephs.values()), first)
+
+
+def _d19(x: float) -> str:
+    return f"{x:19.12E}".replace("E", "D")
+
+
+def write_rinex_nav(ephemerides: Iterable[GpsEphem], path: Path) -> int:
+    """Write GPS broadcast ephemerides (decoded GPSEPHEM) as a RINEX 3.04 navigation file; returns how many.
+
+    Raises:
+        AnalysisError: an ephemeris with a non-finite parameter (named by PRN and IODE).
+    """
+    lines = [f"{'3.04':>9}{'':11}{'N: GNSS NAV DATA':<20}{'G: GPS':<20}RINEX VERSION / TYPE",
+             f"{'vsc-rig ppk':<20}{'':<20}{'':<20}PGM / RUN BY / DATE",
+             f"{'':60}END OF HEADER"]
+    n = 0
+    for e in sorted(ephemerides, key=lambda e: (e.prn, e.week, e.toc_s)):
+        toc = _GPS_EPOCH + dt.timedelta(weeks=e.week, seconds=e.toc_s)
+        rows = [
+            (e.iode1, e.crs_m, e.delta_n_rad_s, e.m0_rad),
+            (e.cuc_rad, e.ecc, e.cus_rad, math.sqrt(e.a_m)),
+            (e.toe_s, e.cic_rad, e.omega0_rad, e.cis_rad),
+            (e.i0_rad, e.crc_m, e.omega_rad, e.omega_dot_rad_s),
+            (e.idot_rad_s, 1.0, e.week, 0.0),  # codes on L2: C/A; GPS week; L2 P data flag
+            (math.sqrt(e.ura_var_m2) if e.ura_var_m2 > 0 else 2.0, e.health, e.tgd_s, e.iodc),
+            (e.tow_s, 4.0),  # transmission time; fit interval (h)
+        ]
+        values = [float(v) for r in rows for v in r] + [e.af0_s, e.af1_s_s, e.af2_s_s2]
+        if not all(math.isfinite(v) for v in values):
+            raise AnalysisError(f"GPSEPHEM PRN {e.prn} IODE {e.iode1}: non-finite orbit parameter")
+        lines.append(f"G{e.prn:02d} {toc:%Y %m %d %H %M %S}{_d19(e.af0_s)}{_d19(e.af1_s_s)}{_d19(e.af2_s_s2)}")
+        lines.extend("    " + "".join(_d19(float(v)) for v in r) for r in rows)
+        n += 1
+    path.write_text("\n".join(lines) + "\n")
+    return n
+
+
+# --- RINEX / .pos helpers ------------------------------------------------------------------------
+
+_APPROX = re.compile(r"^(.{14})(.{14})(.{14})\s*APPROX POSITION XYZ")
+
+
+def _approx_position(obs: Path) -> tuple[float, float, float] | None:
+    with open(obs) as f:
+        for line in f:
+            if "END OF HEADER" in line:
+                break
+            m = _APPROX.match(line)
+            if m:
+                xyz = tuple(float(v) for v in m.groups())
+                if math.hypot(*xyz) > 6.0e6:
+                    return xyz[0], xyz[1], xyz[2]
+    return None
+
+
+def _read_pos(path: Path) -> npt.NDArray[np.float64]:
+    """rnx2rtkp's default output (GPS week, TOW, lat, lon, h, Q, ns, sdn, sde, sdu, …, age, ratio) as rows."""
+    rows: list[list[float]] = []
+    with open(path) as f:
+        for line in f:
+            if not line.strip() or line.startswith("%"):
+                continue
+            parts = line.split()
+            if len(parts) < 15:
+                raise AnalysisError(f"{path}: unexpected rnx2rtkp output line {line.strip()!r}")
+            rows.append([float(p) for p in parts[:15]])
+    return np.asarray(rows, dtype=float).reshape(-1, 15)
+
+
+# --- the command ----------------------------------------------------------------------------------
+
+
+def _receiver_names(session_path: Path) -> list[str]:
+    from rig.dataset import load_session
+
+    cfg = load_session(session_path, topics=()).config
+    receivers = cfg.get("receivers", [])
+    items = receivers.values() if isinstance(receivers, dict) else receivers
+    return [str(r["name"]) for r in items if isinstance(r, dict) and "name" in r]
+
+
+def _rovers_of(session_path: Path) -> tuple[list[str], int]:
+    from rig.dataset import load_session
+
+    from rig import topics as T
+
+    times = {T.gnss_time(r) for r in _receiver_names(session_path)}
+    ds = load_session(session_path, topics=times)
+    receivers = ds.config.get("receivers", [])
+    items = receivers.values() if isinstance(receivers, dict) else receivers
+    rovers = [str(r["name"]) for r in items if isinstance(r, dict) and r.get("role") == "rover" and "name" in r]
+    leap = ds.leap_seconds
+    if leap is None:
+        raise AnalysisError(f"{session_path}: no TIME log with the leap-second count: log TIMEB on a rover")
+    return rovers, int(leap)
+
+
+def run_ppk(
+    session_path: Path | str,
+    *,
+    rovers: Sequence[str] | None = None,
+    out: Path | str | None = None,
+    work_dir: Path | str | None = None,
+    timeout_s: float = DEFAULT_TIMEOUT_S,
+    elevation_mask_deg: float = ELEVATION_MASK_DEG,
+) -> PpkRun:
+    """Run RTKLIB on each rover of a recorded session and write the side file (see the module docstring).
+
+    ``work_dir`` keeps the intermediate files (exported streams, RINEX, ``.pos``); default: a temporary
+    directory removed afterwards.
+
+    Raises:
+        RtklibMissingError: ``convbin`` / ``rnx2rtkp`` not on PATH.
+        AnalysisError: a rover without RANGECMP or GPSEPHEM logs (the message says what to log), no base
+            position in the corrections, an unknown rover, or an RTKLIB call that failed or timed out.
+        SessionFileError: the session cannot be read or the side file cannot be written.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from rig.export import ExportKind, export_raw_gnss
+
+    tools = _tools()
+    session = Path(session_path)
+    known, leap = _rovers_of(session)
+    chosen = list(rovers) if rovers else known
+    unknown = [r for r in chosen if r not in known]
+    if unknown:
+        raise AnalysisError(f"{session}: no rover named {', '.join(unknown)} (rovers: {', '.join(known) or 'none'})")
+    if not chosen:
+        raise AnalysisError(f"{session}: the session configuration has no rover receiver")
+    target = Path(out) if out is not None else ppk_file_path(session)
+    with tempfile.TemporaryDirectory(prefix="rig-ppk-") as tmp:
+        wd = Path(work_dir) if work_dir is not None else Path(tmp)
+        wd.mkdir(parents=True, exist_ok=True)
+        report = export_raw_gnss(session, wd / "raw", overwrite=True)
+        warnings = list(report.warnings)
+        corrections = [f.path for f in report.files if f.kind is ExportKind.CORRECTIONS]
+        if not corrections:
+            raise AnalysisError(f"{session}: no relayed corrections (/relay/raw) recorded: PPK needs the base's RTCM3")
+        streams = {r: _scan_rover(wd / "raw" / f"{r}.gps", r) if (wd / "raw" / f"{r}.gps").exists() else None
+                   for r in chosen}
+        for r, st in streams.items():
+            todo = []
+            if st is None or st.rangecmp == 0:
+                todo.append("RANGECMPB ONTIME 0.05")
+            if st is None or not st.ephemerides:
+                todo.append("GPSEPHEMB ONCHANGED")
+            if todo:
+                raise AnalysisError(f"{session}: rover {r} has no {' and no '.join(t.split()[0] for t in todo)} in the "
+                                    f"recording: log {' and '.join(todo)} on {r} (raw observations and ephemerides)")
+        first = min(st.first_gps_ns for st in streams.values() if st is not None and st.first_gps_ns is not None)
+        t_approx = _GPS_EPOCH + dt.timedelta(microseconds=first // 1000)
+        base_obs = wd / "base.obs"
+        _run([tools["convbin"], "-r", "rtcm3", "-v", "3.04", "-tr", *t_approx.strftime("%Y/%m/%d %H:%M:%S").split(),
+              "-o", str(base_obs), str(corrections[0])], "base corrections to RINEX", timeout_s, wd)
+        base_xyz = _approx_position(base_obs) if base_obs.exists() else None
+        if base_xyz is None:
+            raise AnalysisError(f"{corrections[0]}: the corrections carry no base position (RTCM 1005/1006): "
+                                "log RTCM1006 on the base")
+        tables = []
+        results = []
+        for r in chosen:
+            st = streams[r]
+            assert st is not None
+            nav = wd / f"{r}.nav"
+            write_rinex_nav(st.ephemerides, nav)
+            obs = wd / f"{r}.obs"
+            _run([tools["convbin"], "-r", "nov", "-v", "3.04", "-o", str(obs), str(wd / "raw" / f"{r}.gps")],
+                 f"rover {r} to RINEX", timeout_s, wd)
+            pos = wd / f"{r}.pos"
+            _run([tools["rnx2rtkp"], "-p", "2", "-c", "-f", "2", "-m", f"{elevation_mask_deg:g}",
+                  "-r", *(f"{v:.4f}" for v in base_xyz), "-o", str(pos), str(obs), str(base_obs), str(nav)],
+                 f"rover {r} PPK", timeout_s, wd)
+            rows = _read_pos(pos)
+            gps_ns = np.round(rows[:, 0] * _WEEK_NS + rows[:, 1] * _NS).astype(np.int64)
+            q = rows[:, 5].astype(np.int8)
+            tables.append(pa.table({
+                "rover": pa.array([r] * len(rows), pa.string()),
+                "gps_time_ns": gps_ns,
+                "time_ns": gps_ns + _GPS_UNIX_OFFSET_NS - leap * _NS,
+                "lat_deg": rows[:, 2], "lon_deg": rows[:, 3], "height_m": rows[:, 4],
+                "q": q, "ns": rows[:, 6].astype(np.int16),
+                "sdn_m": rows[:, 7], "sde_m": rows[:, 8], "sdu_m": rows[:, 9], "ratio": rows[:, 14],
+            }))
+            results.append(PpkRover(r, len(rows), int(np.count_nonzero(q == PpkQuality.FIX)), st.rangecmp,
+                                    float(np.median(rows[:, 6])) if len(rows) else 0.0))
+        table = pa.concat_tables(tables)
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            tmp_out = target.with_name(target.name + ".tmp")
+            pq.write_table(table, tmp_out)
+            tmp_out.replace(target)
+        except OSError as exc:
+            raise SessionFileError(f"{target}: cannot write the PPK side file: {exc}") from exc
+    return PpkRun(target, tuple(results), tuple(warnings))
+
+
+@dataclass(frozen=True, slots=True)
+class PpkSolutions:
+    """One rover's PPK solutions from the side file (arrays in epoch order)."""
+
+    rover: str
+    gps_time_ns: npt.NDArray[np.int64]
+    lat_deg: npt.NDArray[np.float64]
+    lon_deg: npt.NDArray[np.float64]
+    height_m: npt.NDArray[np.float64]
+    q: npt.NDArray[np.int8]
+    sdn_m: npt.NDArray[np.float64]
+    sde_m: npt.NDArray[np.float64]
+    sdu_m: npt.NDArray[np.float64]
+    ratio: npt.NDArray[np.float64]
+
+    @property
+    def fixed(self) -> npt.NDArray[np.bool_]:
+        return np.asarray(self.q == PpkQuality.FIX)
+
+
+def read_ppk_file(path: Path | str) -> dict[str, PpkSolutions]:
+    """The side file's solutions per rover ({} when there is no file).
+
+    Raises:
+        SessionFileError: the file exists but is not a readable PPK side file (columns named).
+    """
+    import pyarrow.parquet as pq
+
+    p = Path(path)
+    if not p.exists():
+        return {}
+    try:
+        tbl = pq.read_table(p)
+    except (OSError, ValueError) as exc:
+        raise SessionFileError(f"{p}: not a readable PPK side file: {exc}") from exc
+    missing = [c for c in PPK_COLUMNS if c not in tbl.column_names]
+    if missing:
+        raise SessionFileError(f"{p}: PPK side file lacks the columns {', '.join(missing)}")
+    cols = {c: tbl.column(c).to_numpy() for c in PPK_COLUMNS}
+    out: dict[str, PpkSolutions] = {}
+    for r in sorted(set(cols["rover"].tolist())):
+        m = cols["rover"] == r
+        idx = np.flatnonzero(m)[np.argsort(cols["gps_time_ns"][m], kind="stable")]
+
+        def col(name: str, dtype: type, idx: npt.NDArray[np.intp] = idx) -> npt.NDArray:
+            return np.asarray(cols[name][idx], dtype=dtype)
+
+        out[str(r)] = PpkSolutions(str(r), col("gps_time_ns", np.int64), col("lat_deg", np.float64),
+                                   col("lon_deg", np.float64), col("height_m", np.float64), col("q", np.int8),
+                                   col("sdn_m", np.float64), col("sde_m", np.float64), col("sdu_m", np.float64),
+                                   col("ratio", np.float64))
+    return out
