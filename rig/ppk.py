@@ -255,10 +255,9 @@ def _receiver_names(session_path: Path) -> list[str]:
 
 def _rovers_of(session_path: Path) -> tuple[list[str], int]:
     from rig.dataset import load_session
+    from rig.topics import gnss_time
 
-    from rig import topics as T
-
-    times = {T.gnss_time(r) for r in _receiver_names(session_path)}
+    times = {gnss_time(r) for r in _receiver_names(session_path)}
     ds = load_session(session_path, topics=times)
     receivers = ds.config.get("receivers", [])
     items = receivers.values() if isinstance(receivers, dict) else receivers
