@@ -346,7 +346,8 @@ def run_ppk(
                   "-r", *(f"{v:.4f}" for v in base_xyz), "-o", str(pos), str(obs), str(base_obs), str(nav)],
                  f"rover {r} PPK", timeout_s, wd)
             rows = _read_pos(pos)
-            gps_ns = np.round(rows[:, 0] * _WEEK_NS + rows[:, 1] * _NS).astype(np.int64)
+            # integer arithmetic: GPS ns since 1980 need 61 bits, more than a float's mantissa
+            gps_ns = rows[:, 0].astype(np.int64) * _WEEK_NS + np.round(rows[:, 1] * 1000.0).astype(np.int64) * 1_000_000
             q = rows[:, 5].astype(np.int8)
             tables.append(pa.table({
                 "rover": pa.array([r] * len(rows), pa.string()),

@@ -381,6 +381,7 @@ def _html(sv: SessionValidation, embedded: Sequence[tuple[str, str]]) -> str:
          f"valid {100 * _needed_validity(res):.1f} % of the epochs of the manoeuvres that need it "
          f"({100 * res.reference_valid_fraction:.1f} % of the whole drive, low-speed manoeuvring included; "
          f"{html.escape(sv.invalid_summary)})</li>"),
+        *([f"<li>{html.escape(sv.reference.source_summary())}</li>"] if sv.reference.source is not None else []),
         f"<li>tolerances: {html.escape(sv.tolerance_text)}</li>",
         f"<li>duration {sv.t_s[-1] - sv.t_s[0]:.1f} s, {sv.t_s.size} GNSS epochs</li>",
         "</ul>",

@@ -70,7 +70,7 @@ import math
 import os
 import tempfile
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -180,6 +180,9 @@ class AntennaFixes:
     velocity_east_mps: FloatArray
     velocity_north_mps: FloatArray
     velocity_ok: BoolArray
+    source: StrArray | None = None
+    """Per epoch, where the position comes from (``rtk``, ``ppk``, ``none``: see
+    :func:`rig.analysis.reference.choose_position_source`); None: no PPK side file, live only."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -241,7 +244,17 @@ class DualGnss:
             fixed_b=self.b.rtk_fixed & self.b.solution_ok,
             position_sigma_a=sig_a,
             position_sigma_b=sig_b,
+            source=self.source,
         )
+
+    @property
+    def source(self) -> StrArray | None:
+        """Per-epoch position source of the pair (``rtk``, ``ppk``, ``rtk/ppk`` …); None without PPK."""
+        if self.a.source is None or self.b.source is None:
+            return None
+        from rig.analysis.reference import epoch_source
+
+        return epoch_source(self.a.source, self.b.source)
 
 
 @dataclass(frozen=True, slots=True)
@@ -525,6 +538,50 @@ def _fixes_at(
     )
 
 
+def _with_ppk(
+    session: Session, fixes: tuple[AntennaFixes, AntennaFixes], gps: IntArray, origin: tuple[float, float, float],
+    warnings: list[str],
+) -> tuple[AntennaFixes, AntennaFixes]:
+    """Both antennas with, per epoch, the better of live RTK and PPK (``<session>.ppk.parquet`` from ``rig ppk``)."""
+    from rig.analysis.reference import PositionSource, choose_position_source
+    from rig.ppk import ppk_file_path, read_ppk_file
+
+    path = ppk_file_path(session.path)
+    solutions = read_ppk_file(path)
+    if not solutions:
+        return fixes
+    out = []
+    for f in fixes:
+        sol = solutions.get(f.receiver)
+        ppk_fixed = np.zeros(gps.shape, dtype=bool)
+        rows = np.zeros(gps.shape, dtype=np.intp)
+        if sol is None:
+            warnings.append(f"{path}: no PPK solution of {f.receiver} (antenna {f.antenna}); live RTK only")
+        elif sol.gps_time_ns.size:
+            rows = np.clip(np.searchsorted(sol.gps_time_ns, gps), 0, sol.gps_time_ns.size - 1)
+            ppk_fixed = (sol.gps_time_ns[rows] == gps) & sol.fixed[rows]
+        source = choose_position_source(f.rtk_fixed, ppk_fixed)
+        use = source == PositionSource.PPK.value
+        if sol is None or not np.any(use):
+            out.append(replace(f, source=source))
+            continue
+        r = rows[use]
+        lat, lon, h = f.lat_deg.copy(), f.lon_deg.copy(), f.height_m.copy()
+        lat[use], lon[use], h[use] = sol.lat_deg[r], sol.lon_deg[r], sol.height_m[r]
+        e, nn, u = (np.asarray(x, dtype=np.float64)
+                    for x in pymap3d.geodetic2enu(lat, lon, h, origin[0], origin[1], origin[2]))
+        sig_e, sig_n, sig_u = f.sigma_east_m.copy(), f.sigma_north_m.copy(), f.sigma_up_m.copy()
+        sig_e[use], sig_n[use], sig_u[use] = sol.sde_m[r], sol.sdn_m[r], sol.sdu_m[r]
+        ptype = f.position_type.astype(object)
+        ptype[use] = "PPK_FIXED"
+        out.append(replace(
+            f, lat_deg=lat, lon_deg=lon, height_m=h, east_m=e, north_m=nn, up_m=u, sigma_east_m=sig_e,
+            sigma_north_m=sig_n, sigma_up_m=sig_u, position_type=ptype.astype(np.str_),
+            solution_ok=f.solution_ok | use, rtk_fixed=f.rtk_fixed | use, source=source,
+        ))
+    return out[0], out[1]
+
+
 def _dual_gnss(session: Session) -> tuple[DualGnss | None, str | None, list[str]]:
     """(data, reason it is missing, warnings)."""
     warnings: list[str] = []
@@ -565,6 +622,7 @@ def _dual_gnss(session: Session) -> tuple[DualGnss | None, str | None, list[str]
     origin = (lat0, lon0, h0)
     a = _fixes_at(ants["a"], "a", fa["g"], ia, common, origin)
     b = _fixes_at(ants["b"], "b", fb["g"], ib, common, origin)
+    a, b = _with_ppk(session, (a, b), common, origin, warnings)
     # baseline in the local frame at B, per epoch
     de, dn, du = (np.asarray(x, dtype=np.float64)
                   for x in pymap3d.geodetic2enu(a.lat_deg, a.lon_deg, a.height_m, b.lat_deg, b.lon_deg, b.height_m))

@@ -733,6 +733,7 @@ def validation_lines(sv: SessionValidation) -> list[str]:
         f"valid {100 * (o.valid_fraction if o is not None else res.reference_valid_fraction):.1f} % of the epochs "
         f"of the manoeuvres that need it ({100 * res.reference_valid_fraction:.1f} % of all {sv.t_s.size})"),
         *sv.timing_warnings,
+        *([sv.reference.source_summary()] if sv.reference.source is not None else []),
         f"estimate: {res.estimate_source}",
     ]
     if o is not None:

@@ -92,9 +92,12 @@ __all__ = [
     "ImuSpec",
     "InvalidReason",
     "OpticalSideslip",
+    "PositionSource",
     "ReferenceMethod",
     "ReferenceSideslip",
+    "choose_position_source",
     "cross_check",
+    "epoch_source",
     "optical_sideslip",
     "reference_sideslip",
     "resample_mean",
@@ -243,6 +246,8 @@ class GnssEpochs:
     position_sigma_a: FloatArray | None = None
     """Optional per-epoch horizontal position σ of A (m, per axis), e.g. from BESTPOS."""
     position_sigma_b: FloatArray | None = None
+    source: npt.NDArray[np.str_] | None = None
+    """Optional per-epoch position source of the pair A/B (:func:`epoch_source`: ``rtk``, ``ppk``, …)."""
 
     def __post_init__(self) -> None:
         t = check_time("gnss.t", self.t)
@@ -255,6 +260,11 @@ class GnssEpochs:
             v = getattr(self, name)
             if v is not None:
                 object.__setattr__(self, name, as_1d(f"gnss.{name}", v, n))
+        if self.source is not None:
+            src = np.asarray(self.source, dtype=np.str_)
+            if src.shape != (n,):
+                raise AnalysisError(f"gnss.source: expected {n} values, got shape {src.shape}")
+            object.__setattr__(self, "source", src)
         object.__setattr__(self, "t", t)
 
     @classmethod
@@ -338,6 +348,52 @@ class ImuSeries:
 
 
 # --------------------------------------------------------------------------------------------
+# Position source per epoch: live RTK or post-processed (PPK)
+# --------------------------------------------------------------------------------------------
+
+
+class PositionSource(enum.StrEnum):
+    """Which solution an antenna's position comes from at an epoch."""
+
+    RTK = "rtk"
+    """Live RTK, ambiguities fixed (NARROW_INT …)."""
+    PPK = "ppk"
+    """Post-processed kinematic (RTKLIB, forward/backward combined), ambiguities fixed (Q = 1)."""
+    NONE = "none"
+    """Neither fixed: the live solution is kept and the epoch is invalid for the reference."""
+
+
+SOURCE_TEXT = {
+    "rtk": "live RTK fixed on both antennas",
+    "ppk": "PPK fixed on both antennas (live RTK not fixed)",
+    "rtk/ppk": "live RTK on A, PPK on B (B's live RTK not fixed)",
+    "ppk/rtk": "PPK on A (A's live RTK not fixed), live RTK on B",
+}
+"""Why an epoch's source was taken, for :meth:`ReferenceSideslip.source_summary`."""
+
+
+def choose_position_source(rtk_fixed: npt.ArrayLike, ppk_fixed: npt.ArrayLike) -> npt.NDArray[np.str_]:
+    """Per epoch, the better fixed solution of one antenna (:class:`PositionSource` values).
+
+    Live RTK fixed is taken where it is (a fixed RTK position is as precise as a fixed PPK one on a
+    short baseline, and keeps the reference equal to the live one); PPK fixed where live RTK is not
+    (a correction dropout, a float stretch); ``none`` where neither is fixed.
+    """
+    rtk = np.asarray(rtk_fixed, dtype=bool)
+    ppk = np.asarray(ppk_fixed, dtype=bool)
+    if rtk.shape != ppk.shape:
+        raise AnalysisError(f"choose_position_source: rtk_fixed {rtk.shape} and ppk_fixed {ppk.shape} differ")
+    return np.where(rtk, PositionSource.RTK.value, np.where(ppk, PositionSource.PPK.value, PositionSource.NONE.value))
+
+
+def epoch_source(source_a: npt.ArrayLike, source_b: npt.ArrayLike) -> npt.NDArray[np.str_]:
+    """The pair's source per epoch: ``rtk`` or ``ppk`` when both antennas agree, else ``A/B`` (``rtk/ppk`` …)."""
+    a = np.asarray(source_a, dtype=np.str_)
+    b = np.asarray(source_b, dtype=np.str_)
+    return np.where(a == b, a, np.char.add(np.char.add(a, "/"), b))
+
+
+# --------------------------------------------------------------------------------------------
 # Result
 # --------------------------------------------------------------------------------------------
 
@@ -366,6 +422,25 @@ class ReferenceSideslip:
     coverage_factor: float = 2.0
     """k for the stated expanded uncertainty U = k·σ (≈ 95 % for a normal error)."""
     diagnostics: Mapping[str, float] = field(default_factory=dict)
+    source: npt.NDArray[np.str_] | None = None
+    """Per-epoch position source of antennas A/B (:func:`epoch_source`; None: live RTK only, no PPK file)."""
+
+    def source_counts(self) -> dict[str, int]:
+        """Valid epochs per position source (``{}`` without a source column)."""
+        if self.source is None:
+            return {}
+        vals, counts = np.unique(self.source[self.valid], return_counts=True)
+        return {str(v): int(c) for v, c in zip(vals, counts, strict=True)}
+
+    def source_summary(self) -> str:
+        """One line: which solution the valid epochs took, and why (empty without a source column)."""
+        counts = self.source_counts()
+        if self.source is None:
+            return ""
+        n = int(np.count_nonzero(self.valid))
+        parts = [f"{c} {SOURCE_TEXT.get(k, k)}" for k, c in sorted(counts.items(), key=lambda kv: -kv[1])]
+        return (f"reference positions per valid epoch ({n}): " + (", ".join(parts) if parts else "none")
+                + "; live RTK fixed is taken where it is, PPK fixed (RTKLIB Q=1) where live RTK is not")
 
     @property
     def u95(self) -> FloatArray:
@@ -393,6 +468,7 @@ class ReferenceSideslip:
             "coverage_factor": self.coverage_factor,
             "points": sorted(self.points),
             "diagnostics": dict(self.diagnostics),
+            "position_sources": self.source_counts(),
         }
 
 
@@ -952,6 +1028,7 @@ def reference_sideslip(
         points=pts,
         coverage_factor=coverage_factor,
         diagnostics=diagnostics,
+        source=gnss.source,
     )
 
 
