@@ -229,15 +229,17 @@ def test_raw_export_over_a_damaged_chunk_carries_on(synth: Synth, tmp_path: Path
     from mcap.reader import make_reader
 
     parts = find_parts(synth.base)
+    rx_topic = T.gnss_raw("rover_a")
+    holding = []  # (part, chunk number, chunk index) of every chunk with rover A's reads, in recording order
     for p in parts:
         shutil.copy(p, tmp_path / p.name)
-    with open(parts[0], "rb") as f:
-        summary = make_reader(f).get_summary()
-    assert summary is not None
-    rx_topic = T.gnss_raw("rover_a")
-    k, ci = [(i, ci) for i, ci in enumerate(summary.chunk_indexes) if any(
-        summary.channels[c].topic == rx_topic for c in ci.message_index_offsets)][1]  # reads before and after
-    damaged = tmp_path / parts[0].name
+        with open(p, "rb") as f:
+            summary = make_reader(f).get_summary()
+        assert summary is not None
+        holding += [(p, i, ci) for i, ci in enumerate(summary.chunk_indexes)
+                    if any(summary.channels[c].topic == rx_topic for c in ci.message_index_offsets)]
+    part, k, ci = holding[1]  # reads before and after it (the writer thread decides how chunks fall)
+    damaged = tmp_path / part.name
     raw = bytearray(damaged.read_bytes())
     raw[ci.chunk_start_offset + ci.chunk_length - 30] ^= 0x10
     damaged.write_bytes(bytes(raw))
