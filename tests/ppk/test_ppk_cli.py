@@ -1,0 +1,92 @@
+"""``rig ppk`` on a short recorded session: per-rover runs, the side file, and its errors."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from typer.testing import CliRunner
+
+from rig.cli.main import app
+from rig.ppk import PPK_COLUMNS, PpkQuality, ppk_file_path, read_ppk_file, run_ppk
+from vsccore.errors import AnalysisError
+
+pytestmark = pytest.mark.skipif(shutil.which("rnx2rtkp") is None or shutil.which("convbin") is None,
+                                reason="RTKLIB not installed (apt-get install rtklib)")
+
+A_LOGS = [{"name": "BESTPOSB", "period_s": 0.05}, {"name": "BESTVELB", "period_s": 0.05},
+          {"name": "TIMEB", "period_s": 1.0}, {"name": "RANGECMPB", "period_s": 0.2},
+          {"name": "GPSEPHEMB", "trigger": "onchanged"}]
+B_LOGS = [{"name": "BESTPOSB", "period_s": 0.05}, {"name": "BESTVELB", "period_s": 0.05},
+          {"name": "TIMEB", "period_s": 1.0}]
+"""Rover B logs no raw observations and no ephemerides."""
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from rig.config import load_session as load_config
+    from rig.demo import demo_config_path
+    from rig.simworld import record_simulated
+    from sim_devices.vehicle.scenarios import make_scenario
+
+    out = tmp_path_factory.mktemp("ppk_cli")
+    cfg = load_config(demo_config_path(), {"simulation.speed": 2.0, "receivers.1.logs": A_LOGS,
+                                           "receivers.2.logs": B_LOGS})
+    rec = record_simulated(cfg, out, name="rec", drive=make_scenario("straight", speed_kmh=40.0, duration_s=6.0),
+                           lead_s=2.0)
+    assert rec.completed and rec.summary.recording.error is None
+    return Path(out) / "rec"
+
+
+def test_ppk_one_rover_writes_the_side_file(session: Path, tmp_path: Path) -> None:
+    out = tmp_path / "a.ppk.parquet"
+    res = CliRunner().invoke(app, ["ppk", str(session), "--rover", "rover_a", "--out", str(out),
+                                   "--keep", str(tmp_path / "work")])
+    assert res.exit_code == 0, res.output
+    assert "rover_a: fix ratio " in res.output and "rover_b" not in res.output
+    assert tuple(pq.read_schema(out).names) == PPK_COLUMNS
+    sols = read_ppk_file(out)
+    assert set(sols) == {"rover_a"}
+    s = sols["rover_a"]
+    # 5 Hz RANGECMPB over the recording, GPS times on the 200 ms grid, mostly fixed, near the start point
+    assert s.gps_time_ns.size >= 25
+    assert np.all(s.gps_time_ns % 200_000_000 == 0)
+    assert np.mean(s.q == PpkQuality.FIX) >= 0.9
+    assert np.all(np.abs(s.lat_deg - 48.7758) < 0.01) and np.all(np.abs(s.lon_deg - 9.1829) < 0.01)
+    # RTKLIB's inputs are kept for a user to open: RINEX obs/nav of the rover and the base, the .pos
+    assert {"rover_a.obs", "rover_a.nav", "base.obs", "rover_a.pos"} <= {p.name for p in (tmp_path / "work").iterdir()}
+    assert not ppk_file_path(session).exists()  # --out went elsewhere
+
+
+def _rig(*args: str, path: str | None = None) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "COLUMNS": "200", "NO_COLOR": "1", "TERM": "dumb"}
+    if path is not None:
+        env["PATH"] = path
+    return subprocess.run([sys.executable, "-m", "rig", *args], capture_output=True, text=True, timeout=300,
+                          env=env, check=False)
+
+
+def test_ppk_names_the_logs_a_rover_lacks(session: Path) -> None:
+    res = _rig("ppk", str(session))
+    assert res.returncode == 2, res.stderr
+    assert "rig: error: " in res.stderr
+    assert "log RANGECMPB ONTIME 0.05 and GPSEPHEMB ONCHANGED on rover_b" in res.stderr
+    assert not ppk_file_path(session).exists()
+
+
+def test_ppk_unknown_rover(session: Path) -> None:
+    with pytest.raises(AnalysisError, match=r"no rover named base \(rovers: rover_a, rover_b\)"):
+        run_ppk(session, rovers=["base"])
+
+
+def test_ppk_without_rtklib_names_the_debian_package(session: Path, tmp_path: Path) -> None:
+    res = _rig("ppk", str(session), "--rover", "rover_a", path=str(tmp_path))  # nothing on PATH
+    assert res.returncode == 2, res.stderr
+    assert "RTKLIB's convbin and rnx2rtkp not found on PATH" in res.stderr
+    assert "apt-get install rtklib" in res.stderr
