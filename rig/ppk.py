@@ -212,19 +212,31 @@ def write_rinex_nav(ephemerides: Iterable[GpsEphem], path: Path) -> int:
 # --- RINEX / .pos helpers ------------------------------------------------------------------------
 
 _APPROX = re.compile(r"^(.{14})(.{14})(.{14})\s*APPROX POSITION XYZ")
+_DELTA = re.compile(r"^(.{14})(.{14})(.{14})\s*ANTENNA: DELTA H/E/N")
 
 
 def _approx_position(obs: Path) -> tuple[float, float, float] | None:
+    """The base antenna's ECEF position from a RINEX header: the reference point RTCM 1005/1006 gives
+    (APPROX POSITION XYZ) raised by the antenna height 1006 gives (ANTENNA: DELTA H/E/N), as RTKLIB
+    does with a position taken from the header. None: no plausible position."""
+    import pymap3d
+
+    xyz: tuple[float, ...] | None = None
+    delta = (0.0, 0.0, 0.0)
     with open(obs) as f:
         for line in f:
             if "END OF HEADER" in line:
                 break
-            m = _APPROX.match(line)
-            if m:
+            if (m := _APPROX.match(line)) is not None:
                 xyz = tuple(float(v) for v in m.groups())
-                if math.hypot(*xyz) > 6.0e6:
-                    return xyz[0], xyz[1], xyz[2]
-    return None
+            elif (m := _DELTA.match(line)) is not None:
+                delta = (float(m.group(1)), float(m.group(2)), float(m.group(3)))
+    if xyz is None or not math.hypot(*xyz) > 6.0e6:
+        return None
+    h_up, d_east, d_north = delta
+    lat, lon, _h = pymap3d.ecef2geodetic(*xyz)
+    dx, dy, dz = pymap3d.enu2uvw(d_east, d_north, h_up, lat, lon)
+    return xyz[0] + float(dx), xyz[1] + float(dy), xyz[2] + float(dz)
 
 
 def _read_pos(path: Path) -> npt.NDArray[np.float64]:

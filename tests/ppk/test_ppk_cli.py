@@ -90,3 +90,25 @@ def test_ppk_without_rtklib_names_the_debian_package(session: Path, tmp_path: Pa
     assert res.returncode == 2, res.stderr
     assert "RTKLIB's convbin and rnx2rtkp not found on PATH" in res.stderr
     assert "apt-get install rtklib" in res.stderr
+
+
+def test_base_position_is_the_reference_point_raised_by_the_antenna_height(tmp_path: Path) -> None:
+    """RTCM 1006's antenna height (RINEX ANTENNA: DELTA H/E/N) goes up along the ellipsoid normal, as RTKLIB does."""
+    import pymap3d
+
+    from rig.ppk import _approx_position
+
+    x, y, z = pymap3d.geodetic2ecef(48.7758, 9.1829, 347.9)
+    header = (f"{'3.04':>9}{'':11}{'OBSERVATION DATA':<20}{'M: Mixed':<20}RINEX VERSION / TYPE\n"
+              f"{x:14.4f}{y:14.4f}{z:14.4f}{'':18}APPROX POSITION XYZ\n"
+              f"{1.5:14.4f}{0.0:14.4f}{0.0:14.4f}{'':18}ANTENNA: DELTA H/E/N\n"
+              f"{'':60}END OF HEADER\n")
+    obs = tmp_path / "base.obs"
+    obs.write_text(header)
+    pos = _approx_position(obs)
+    assert pos is not None
+    lat, lon, h = pymap3d.ecef2geodetic(*pos)
+    assert abs(lat - 48.7758) < 1e-9 and abs(lon - 9.1829) < 1e-9
+    assert abs(h - (347.9 + 1.5)) < 1e-3
+    obs.write_text(header.replace(f"{x:14.4f}{y:14.4f}{z:14.4f}", f"{0.0:14.4f}{0.0:14.4f}{0.0:14.4f}"))
+    assert _approx_position(obs) is None  # no position in the corrections
