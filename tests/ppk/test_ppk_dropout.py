@@ -192,3 +192,13 @@ def test_ppk_reference_covers_the_dropout(dropout: Dropout) -> None:
     assert "PPK fixed on both antennas (live RTK not fixed)" in summary and "live RTK fixed" in summary
     assert summary in validation_lines(sv)
     assert ref.to_dict()["position_sources"] == ref.source_counts()
+
+
+def test_validate_report_states_the_sources(dropout: Dropout, tmp_path: Path) -> None:
+    import html
+
+    from rig.report import write_validation_report
+
+    sv = validate_session(dropout.ppk)
+    files = write_validation_report(sv, tmp_path / "report")
+    assert html.escape(sv.reference.source_summary()) in files.html.read_text(encoding="utf-8")
