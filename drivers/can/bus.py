@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import enum
 import logging
+import os
 import socket
 import threading
 from collections import deque
@@ -367,6 +368,11 @@ def open_bus(config: CanBusConfig, *, probe_timeout_s: float = 1.0) -> can.BusAB
     if config.interface == "socketcand":
         _probe_socketcand(config, probe_timeout_s)
         logging.getLogger(_SOCKETCAND_LOGGER).addFilter(_socketcand_filter)  # idempotent
+        if os.name != "nt":
+            # TCP_NODELAY on the client socket (python-can's default is off): without it Nagle's
+            # algorithm holds a small ``< send >`` command back until the previous one is
+            # acknowledged, and delayed ACKs make that up to 40 ms (a replayed frame sent that late)
+            kwargs.setdefault("tcp_tune", True)
     try:
         return can.Bus(interface=config.interface, channel=config.channel, **kwargs)
     except (can.CanError, OSError, ImportError, ValueError, TypeError) as exc:

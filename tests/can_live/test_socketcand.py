@@ -294,3 +294,17 @@ def test_open_bus_quiets_only_python_cans_split_frame_warning(server: Socketcand
         assert texts == ["Bad data: No opening < found => discarding entire buffer 'xx'"]
     finally:
         bus.shutdown()
+
+
+def test_open_bus_sends_without_nagle_delay(server: SocketcandServer) -> None:
+    """A small ``< send >`` must leave at once: with Nagle's algorithm on (python-can's default), a
+    replayed frame could wait for the previous command's delayed ACK (up to 40 ms)."""
+    import socket
+
+    host, port = server.address
+    bus = open_bus(CanBusConfig("socketcand", "vcan0", bitrate=None, options={"host": host, "port": port}))
+    try:
+        sock = bus._SocketCanDaemonBus__socket  # type: ignore[attr-defined]  # python-can's private socket
+        assert sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) != 0
+    finally:
+        bus.shutdown()
