@@ -239,6 +239,16 @@ def _approx_position(obs: Path) -> tuple[float, float, float] | None:
     return xyz[0] + float(dx), xyz[1] + float(dy), xyz[2] + float(dz)
 
 
+def _is_rinex_obs(path: Path) -> bool:
+    """A RINEX observation file (its first line says so), not a binary RTCM3 stream."""
+    try:
+        with open(path, "rb") as f:
+            first = f.read(80)
+    except OSError as exc:
+        raise SessionFileError(f"{path}: cannot read the base observations: {exc}") from exc
+    return first[60:80].startswith(b"RINEX VERSION / TYPE") and first[20:21] == b"O"
+
+
 def _read_pos(path: Path) -> npt.NDArray[np.float64]:
     """rnx2rtkp's default output (GPS week, TOW, lat, lon, h, Q, ns, sdn, sde, sdu, …, age, ratio) as rows."""
     rows: list[list[float]] = []
@@ -288,11 +298,14 @@ def run_ppk(
     work_dir: Path | str | None = None,
     timeout_s: float = DEFAULT_TIMEOUT_S,
     elevation_mask_deg: float = ELEVATION_MASK_DEG,
+    base: Path | str | None = None,
 ) -> PpkRun:
     """Run RTKLIB on each rover of a recorded session and write the side file (see the module docstring).
 
     ``work_dir`` keeps the intermediate files (exported streams, RINEX, ``.pos``); default: a temporary
-    directory removed afterwards.
+    directory removed afterwards. ``base``: the base's own observations (RINEX 3 obs, or an RTCM3 file with
+    1005/1006) instead of the recorded relayed corrections, for a dropout of the link that fed the relay
+    itself (the base's internal log, or a reference station's file).
 
     Raises:
         RtklibMissingError: ``convbin`` / ``rnx2rtkp`` not on PATH.
@@ -315,14 +328,20 @@ def run_ppk(
     if not chosen:
         raise AnalysisError(f"{session}: the session configuration has no rover receiver")
     target = Path(out) if out is not None else ppk_file_path(session)
+    if base is not None:
+        base = Path(base)
+        if not base.is_file():
+            raise SessionFileError(f"{base}: no such base observation file (--base)")
     with tempfile.TemporaryDirectory(prefix="rig-ppk-") as tmp:
         wd = Path(work_dir) if work_dir is not None else Path(tmp)
         wd.mkdir(parents=True, exist_ok=True)
         report = export_raw_gnss(session, wd / "raw", overwrite=True)
         warnings = list(report.warnings)
-        corrections = [f.path for f in report.files if f.kind is ExportKind.CORRECTIONS]
+        corrections = [base] if base is not None else [
+            f.path for f in report.files if f.kind is ExportKind.CORRECTIONS]
         if not corrections:
-            raise AnalysisError(f"{session}: no relayed corrections (/relay/raw) recorded: PPK needs the base's RTCM3")
+            raise AnalysisError(f"{session}: no relayed corrections (/relay/raw) recorded: PPK needs the base's RTCM3 "
+                                "(or give the base's own observations with --base FILE)")
         streams = {r: _scan_rover(wd / "raw" / f"{r}.gps", r) if (wd / "raw" / f"{r}.gps").exists() else None
                    for r in chosen}
         for r, st in streams.items():
@@ -336,12 +355,16 @@ def run_ppk(
                                     f"recording: log {' and '.join(todo)} on {r} (raw observations and ephemerides)")
         first = min(st.first_gps_ns for st in streams.values() if st is not None and st.first_gps_ns is not None)
         t_approx = _GPS_EPOCH + dt.timedelta(microseconds=first // 1000)
-        base_obs = wd / "base.obs"
-        _run([tools["convbin"], "-r", "rtcm3", "-v", "3.04", "-tr", *t_approx.strftime("%Y/%m/%d %H:%M:%S").split(),
-              "-o", str(base_obs), str(corrections[0])], "base corrections to RINEX", timeout_s, wd)
+        if _is_rinex_obs(corrections[0]):
+            base_obs = corrections[0]
+        else:
+            base_obs = wd / "base.obs"
+            _run([tools["convbin"], "-r", "rtcm3", "-v", "3.04", "-tr",
+                  *t_approx.strftime("%Y/%m/%d %H:%M:%S").split(), "-o", str(base_obs), str(corrections[0])],
+                 "base corrections to RINEX", timeout_s, wd)
         base_xyz = _approx_position(base_obs) if base_obs.exists() else None
         if base_xyz is None:
-            raise AnalysisError(f"{corrections[0]}: the corrections carry no base position (RTCM 1005/1006): "
+            raise AnalysisError(f"{corrections[0]}: no base position (RTCM 1005/1006, or a RINEX APPROX POSITION XYZ): "
                                 "log RTCM1006 on the base")
         tables = []
         results = []

@@ -1,6 +1,6 @@
 """``rig ppk``: post-processed kinematic solutions of a recorded session with RTKLIB (:mod:`rig.ppk`).
 
-    rig ppk sessions/2026-05-04_track [--rover rover_a --rover rover_b] [--out FILE] [--keep DIR]
+    rig ppk sessions/2026-05-04_track [--rover rover_a --rover rover_b] [--out FILE] [--keep DIR] [--base FILE]
 
 Writes ``<session>.ppk.parquet`` (read by ``rig validate`` and the other analyses) and prints each rover's
 fix ratio. Exit status 0 on success, 2 on an error (missing logs, RTKLIB not installed, a failed RTKLIB run).
@@ -24,12 +24,15 @@ def ppk(
                                               "this directory.")] = None,
     timeout_s: Annotated[float, typer.Option("--timeout", help="Seconds each RTKLIB call may take.", min=1.0)]
     = 600.0,
+    base: Annotated[Path | None, typer.Option("--base", help="The base's own observations (RINEX 3 obs, or RTCM3 "
+                                              "with 1005/1006) instead of the recorded relayed corrections.")] = None,
     mask_deg: Annotated[float, typer.Option("--mask-deg", help="Elevation mask (deg).", min=0.0, max=60.0)] = 10.0,
 ) -> None:
     """Post-process the rovers' raw observations against the base corrections with RTKLIB (kinematic, combined)."""
     from rig.ppk import run_ppk
 
-    res = run_ppk(session, rovers=rover, out=out, work_dir=keep, timeout_s=timeout_s, elevation_mask_deg=mask_deg)
+    res = run_ppk(session, rovers=rover, out=out, work_dir=keep, timeout_s=timeout_s, elevation_mask_deg=mask_deg,
+                  base=base)
     for w in res.warnings:
         typer.echo(f"warning: {w}", err=True)
     for r in res.rovers:

@@ -112,3 +112,27 @@ def test_base_position_is_the_reference_point_raised_by_the_antenna_height(tmp_p
     assert abs(h - (347.9 + 1.5)) < 1e-3
     obs.write_text(header.replace(f"{x:14.4f}{y:14.4f}{z:14.4f}", f"{0.0:14.4f}{0.0:14.4f}{0.0:14.4f}"))
     assert _approx_position(obs) is None  # no position in the corrections
+
+
+def test_ppk_with_the_bases_own_observations(session: Path, tmp_path: Path) -> None:
+    """--base: RINEX obs or RTCM3 of the base (its own log, a reference station) instead of the relayed stream."""
+    from vsccore.errors import SessionFileError
+
+    ref = run_ppk(session, rovers=["rover_a"], out=tmp_path / "relay.parquet", work_dir=tmp_path / "w")
+    shutil.copy(tmp_path / "w" / "base.obs", tmp_path / "site.obs")
+    shutil.copy(tmp_path / "w" / "raw" / "corrections.rtcm3", tmp_path / "site.rtcm3")
+    expect = read_ppk_file(ref.out)["rover_a"]
+    for name in ("site.obs", "site.rtcm3"):
+        res = _rig("ppk", str(session), "--rover", "rover_a", "--base", str(tmp_path / name),
+                   "--out", str(tmp_path / f"{name}.parquet"))
+        assert res.returncode == 0, res.stderr
+        got = read_ppk_file(tmp_path / f"{name}.parquet")["rover_a"]
+        np.testing.assert_array_equal(got.gps_time_ns, expect.gps_time_ns)
+        np.testing.assert_array_equal(got.q, expect.q)
+        np.testing.assert_allclose(got.lat_deg, expect.lat_deg, rtol=0, atol=1e-9)
+    with pytest.raises(SessionFileError, match=r"nowhere.obs: no such base observation file \(--base\)"):
+        run_ppk(session, rovers=["rover_a"], base=tmp_path / "nowhere.obs")
+    text = (tmp_path / "site.obs").read_text()
+    (tmp_path / "nopos.obs").write_text("\n".join(ln for ln in text.splitlines() if "APPROX POSITION" not in ln))
+    with pytest.raises(AnalysisError, match=r"nopos.obs: no base position"):
+        run_ppk(session, rovers=["rover_a"], base=tmp_path / "nopos.obs", out=tmp_path / "x.parquet")
