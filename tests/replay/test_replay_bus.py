@@ -120,7 +120,7 @@ def test_fault_injection_changes_exactly_the_chosen_signal(recorded: Session, so
         assert not bad.any(), (name, FrameFlag(int(bad[bad != 0][0])).names())
 
 
-@pytest.mark.realtime
+@pytest.mark.idle_host
 def test_spacing_within_1ms_at_1x_on_a_virtual_bus(recorded: Session, channel: str, tmp_path: Path) -> None:
     """At 1x every frame's spacing from its predecessor, as the virtual bus stamps it at send, is within 1 ms
     of the recorded spacing. The receiving reader runs in the player's process here, so the interpreter's
@@ -139,7 +139,7 @@ def test_spacing_within_1ms_at_1x_on_a_virtual_bus(recorded: Session, channel: s
     assert stats.late_frames == 0, stats.summary()
 
 
-@pytest.mark.realtime
+@pytest.mark.idle_host
 def test_spacing_within_1ms_at_1x_from_rig_replay_over_socketcand(recorded: Session, socketcand: SocketcandServer,
                                                                   tmp_path: Path) -> None:
     """``rig replay`` in a process of its own sends over TCP to the socketcand server, whose bus stamps each
