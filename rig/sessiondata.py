@@ -1021,6 +1021,15 @@ def _load_optical(
         applied = smp.zero_offset_applied_rad if math.isfinite(smp.zero_offset_applied_rad) else zero_rec
         tns = np.asarray(tns, dtype=np.int64)
         order = np.argsort(tns, kind="stable")
+        # The recorder never lets log_time run back on a channel: where the DAQ's time base steps back
+        # (host estimate → sync pulse) it holds the samples at the last time until the new time
+        # catches up, so a few samples share one stamp. Keep the first of each stamp; the analysis
+        # needs strictly increasing times.
+        repeated = np.r_[False, np.diff(tns[order]) <= 0]
+        if repeated.any():
+            warnings.append(f"optical sensor {o.name!r}: {int(repeated.sum())} samples share a time stamp with the "
+                            "one before (log_time held where the time base stepped back); left out")
+            order = order[~repeated]
         valid = np.asarray(smp.valid, dtype=bool)[order]
         ser = OpticalSeries(
             name=o.name, kind=o.kind, wheel=o.wheel, mount_xy_m=o.mount.xy, time_ns=tns[order], t_s=rel(tns[order]),

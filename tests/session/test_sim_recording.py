@@ -258,3 +258,46 @@ def test_every_json_message_validates_with_a_standard_json_schema_validator(run:
         assert failures == [], failures[:5]
         checked += n
     assert checked > 1000
+
+
+def test_optical_samples_held_at_one_log_time_do_not_refuse_the_session(run: Recorded, tmp_path: Path) -> None:
+    """Where the DAQ's time base steps back (host estimate → sync pulse) the recorder holds the optical
+    samples at the channel's last log_time, so a few share one stamp. Loading the session must keep
+    going (it refused with "optical.t not strictly increasing") and say what it left out."""
+    from mcap.writer import Writer
+
+    from rig.sessiondata import load_inputs
+
+    src = sorted(run.rec.summary.recording.parts)[0]
+    copy = tmp_path / src.name
+    held = 0
+    with src.open("rb") as fin, copy.open("wb") as fout:
+        reader = make_reader(fin)
+        writer = Writer(fout)
+        writer.start(profile="", library="test")
+        summary = reader.get_summary()
+        assert summary is not None
+        schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
+        channel_ids = {cid: writer.register_channel(c.topic, c.message_encoding, schema_ids.get(c.schema_id, 0))
+                       for cid, c in summary.channels.items()}
+        for name, meta in ((m.name, m.metadata) for m in reader.iter_metadata()):
+            writer.add_metadata(name, meta)
+        for att in reader.iter_attachments():
+            writer.add_attachment(att.create_time, att.log_time, att.name, att.media_type, att.data)
+        last_optical: int | None = None
+        for _schema, channel, message in reader.iter_messages(log_time_order=False):
+            log_time = message.log_time
+            if channel.topic == T.optical("body"):
+                # ten samples in a row held at the time of the one before them
+                if last_optical is not None and 1000 <= message.sequence % 5000 < 1010:
+                    log_time = last_optical
+                    held += 1
+                last_optical = log_time
+            writer.add_message(channel_ids[channel.id], log_time, message.data, message.publish_time, message.sequence)
+        writer.finish()
+    assert held >= 10
+    inputs = load_inputs(copy)
+    assert "body" in inputs.optical
+    t = inputs.optical["body"].t_s
+    assert np.all(np.diff(t) > 0)
+    assert any("share a time stamp" in w for w in inputs.load_warnings), inputs.load_warnings
