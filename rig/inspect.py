@@ -88,8 +88,9 @@ from rig.recorder.reader import (
     MCAP_MAGIC,
     CorruptChunkError,
     DamagedRegion,
-    DamageKind,
     ProblemKind,
+    damaged_chunk_count,
+    damaged_seconds,
     decompress_chunk,
     find_parts,
     part_index,
@@ -236,11 +237,11 @@ class PartInfo:
 
     @property
     def damaged_chunks(self) -> int:
-        return sum(max(1, len(d.chunks)) for d in self.damage if d.kind is DamageKind.CHUNK)
+        return damaged_chunk_count(self.damage)
 
     @property
     def damaged_s(self) -> float:
-        return sum(d.duration_s for d in self.damage if d.kind in (DamageKind.CHUNK, DamageKind.RECORD))
+        return damaged_seconds(self.damage)
 
 
 @dataclass(frozen=True, slots=True)

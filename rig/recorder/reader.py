@@ -24,7 +24,7 @@ import os
 import re
 import struct
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
 from io import BytesIO
@@ -235,6 +235,16 @@ class DamagedRegion:
         )
 
 
+def damaged_chunk_count(damage: Iterable[DamagedRegion]) -> int:
+    """Chunks lost to ``damage`` (a damaged region that names no chunk counts as one)."""
+    return sum(max(1, len(d.chunks)) for d in damage if d.kind is DamageKind.CHUNK)
+
+
+def damaged_seconds(damage: Iterable[DamagedRegion]) -> float:
+    """Seconds of data in the damaged chunks and records of ``damage``."""
+    return sum(d.duration_s for d in damage if d.kind in (DamageKind.CHUNK, DamageKind.RECORD))
+
+
 @dataclass(frozen=True, slots=True)
 class ChunkInfo:
     """Where a complete chunk lies in a part (enough to index it)."""
@@ -324,12 +334,12 @@ class PartScan:
     @property
     def damaged_chunks(self) -> int:
         """Chunks lost to damage."""
-        return sum(max(1, len(d.chunks)) for d in self.damage if d.kind is DamageKind.CHUNK)
+        return damaged_chunk_count(self.damage)
 
     @property
     def damaged_s(self) -> float:
         """Seconds of data in the damaged chunks and records."""
-        return sum(d.duration_s for d in self.damage if d.kind in (DamageKind.CHUNK, DamageKind.RECORD))
+        return damaged_seconds(self.damage)
 
     def damage_events(self) -> list[Event]:
         """Every damaged region as a ``/rig/events``-style warning."""

@@ -48,6 +48,8 @@ from rig.recorder.reader import (
     DamageKind,
     PartScan,
     ProblemKind,
+    damaged_chunk_count,
+    damaged_seconds,
     scan_part,
     session_base,
 )
@@ -91,11 +93,11 @@ class RecoverReport:
 
     @property
     def damaged_chunks(self) -> int:
-        return sum(max(1, len(d.chunks)) for d in self.damage if d.kind is DamageKind.CHUNK)
+        return damaged_chunk_count(self.damage)
 
     @property
     def damaged_s(self) -> float:
-        return sum(d.duration_s for d in self.damage if d.kind in (DamageKind.CHUNK, DamageKind.RECORD))
+        return damaged_seconds(self.damage)
 
 
 OffsetMap = Callable[[int], int]
