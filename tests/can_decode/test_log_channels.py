@@ -24,6 +24,7 @@ from drivers.can.vector_decode import VectorDecoder
 from rig.cli.main import app, main
 from sim_devices.vehicle import make_scenario, simulate
 from sim_devices.vsc_ecu import frames, vsc_sim_dbc_path
+from tests.can_decode.test_decode_cli import _decode, _write
 from vsccore.errors import ConfigError, DecodeError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -48,19 +49,6 @@ def _two_channels(ecu: list[can.Message]) -> list[can.Message]:
         out.append(can.Message(timestamp=m.timestamp + 3e-4, arbitration_id=m.arbitration_id, data=bytes(m.data),
                                is_extended_id=m.is_extended_id, channel=1))
     return out
-
-
-def _write(messages: list[can.Message], path: Path) -> Path:
-    with can.Logger(path) as logger:
-        for m in messages:
-            logger.on_message_received(m)
-    return path
-
-
-def _decode(args: list[str]) -> tuple[str, str]:
-    result = runner.invoke(app, ["can", "decode", *args])
-    assert result.exit_code == 0, (result.output, result.exception)
-    return result.stdout, result.stderr
 
 
 def _jsonl(path: Path) -> list[dict[str, object]]:
