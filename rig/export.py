@@ -1645,13 +1645,6 @@ def export_mdf4(
     return ExportReport(tuple(files), tuple(stream.warnings))
 
 
-def _mat_name(group: str) -> str:
-    name = "".join(c if c.isalnum() or c == "_" else "_" for c in group)
-    if not name[:1].isalpha():
-        name = "g_" + name
-    return name[:63]
-
-
 def export_mat(
     path: Path | str,
     out_dir: Path | str,
@@ -1660,89 +1653,11 @@ def export_mat(
     overwrite: bool = False,
     progress: Callable[[int, int, int], None] | None = None,
     validation: bool = True,
+    version: str = "7.3",
 ) -> ExportReport:
-    """Write a session as a MATLAB v5 file ``<out_dir>/<session>.mat`` (scipy.io), one struct per topic group.
+    """Write a session as the MATLAB file ``<out_dir>/<session>.mat``: MAT v7.3 (HDF5, streamed with bounded
+    memory) by default, v5 (scipy.io) with ``version="5"``; :func:`rig.export_mat.export_mat` says how."""
+    from rig.export_mat import export_mat as _export_mat
 
-    Each struct has ``time_ns`` (int64, common time base), ``time_s`` (seconds since the session's first
-    message), the group's columns (unit-suffixed names) and ``units`` (a struct: column → unit). Raw CAN
-    frames are left out (MDF4 and Parquet carry them; the decoded roles are here as ``can_<bus>_roles``).
-    With ``validation`` a ``sideslip`` struct holds the GNSS reference sideslip, the VSC estimate and the
-    error on one time vector (``rig validate``'s computation; skipped with a warning when the session lacks
-    what it needs). Groups are read streaming and written one variable at a time: memory holds the
-    largest group's arrays.
-    """
-    from scipy.io.matlab import savemat
-
-    out = Path(out_dir)
-    stream = open_stream(path)
-    final = out / f"{stream.name}.mat"
-    _check_new(final, overwrite)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SessionFileError(f"{out}: cannot create the export directory: {exc}") from exc
-    gathered: dict[str, list[GroupChunk]] = {}
-    for chunk in iter_groups(stream, topics=topics, progress=_progress_fn(progress, stream)):
-        if chunk.kind is GroupKind.CAN_FRAMES or not len(chunk):
-            continue
-        gathered.setdefault(chunk.group, []).append(chunk)
-    warnings = list(stream.warnings)
-    structs: dict[str, dict[str, Any]] = {}
-    rows: dict[str, int] = {}
-    for group, chunks in gathered.items():
-        t = np.concatenate([c.time_ns for c in chunks])
-        st: dict[str, Any] = {"time_ns": t, "time_s": (t - stream.start_ns) / 1e9}
-        units: dict[str, str] = {"time_ns": "ns", "time_s": "s"}
-        for name in chunks[0].columns:
-            parts = [c.numeric(name) for c in chunks]
-            v = np.concatenate(parts)
-            if v.dtype == object:
-                v = np.asarray([str(x) for x in v.tolist()], dtype=object)
-            st[_mat_name(name)] = v
-            units[_mat_name(name)] = chunks[0].units.get(name, "")
-        st["units"] = units
-        structs[_mat_name(group)] = st
-        rows[group] = int(t.size)
-    if validation:
-        try:
-            from rig.sessiondata import load_inputs
-            from rig.validate import validate_session
-
-            inp = load_inputs(stream.path)
-            sv = validate_session(inp)
-        except (AnalysisError, ConfigError, SessionFileError) as exc:
-            warnings.append(f"sideslip: reference and estimate not exported: {exc}")
-        else:
-            t_ns = inp.t0_ns + np.round(np.asarray(sv.t_s, dtype=np.float64) * 1e9).astype(np.int64)
-            structs["sideslip"] = {
-                "time_ns": t_ns,
-                "time_s": (t_ns - stream.start_ns) / 1e9,
-                "reference_rad": np.asarray(sv.reference.beta, dtype=np.float64),
-                "reference_sigma_rad": np.asarray(sv.reference.sigma, dtype=np.float64),
-                "estimate_rad": np.asarray(sv.estimate_rad, dtype=np.float64),
-                "error_rad": np.asarray(sv.error_rad, dtype=np.float64),
-                "units": {"time_ns": "ns", "time_s": "s", "reference_rad": "rad", "reference_sigma_rad": "rad",
-                          "estimate_rad": "rad", "error_rad": "rad"},
-            }
-            rows["sideslip"] = int(sv.t_s.size)
-    if not structs:
-        raise AnalysisError(f"{path}: nothing to export as MAT (no table topics"
-                            f"{' matching --topics' if topics else ''})")
-    structs["session"] = {"name": stream.name, "start_ns": np.int64(stream.start_ns),
-                          "start_utc": _utc_text(stream.start_ns)}
-    tmp = _partial(final)
-    try:
-        savemat(tmp, structs, do_compression=True, long_field_names=True, oned_as="column")
-        os.replace(tmp, final)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise SessionFileError(f"{final}: cannot write the MAT file: {exc}") from exc
-    files = [ExportedFile(final, ExportKind.TABLE, f"{len(structs)} structs: " + ", ".join(sorted(structs)),
-                          final.stat().st_size, sum(rows.values()))]
-    return ExportReport(tuple(files), tuple(warnings))
-
-
-def _utc_text(t_ns: int) -> str:
-    from datetime import UTC, datetime
-
-    return datetime.fromtimestamp(t_ns / 1e9, tz=UTC).isoformat()
+    return _export_mat(path, out_dir, topics=topics, overwrite=overwrite, progress=progress, validation=validation,
+                       version=version)

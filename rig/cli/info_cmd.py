@@ -99,8 +99,9 @@ def export(
     fmt: Annotated[
         _Format | None,
         typer.Option("--format", help="mdf4 (ASAM MDF 4 through asammdf: CAN bus logging + channel groups), "
-                     "parquet (a dataset per topic group, hive-partitioned by session=NAME), mat (MATLAB v5 "
-                     "structs + the sideslip reference/estimate/error), csv (decoded tables)."),
+                     "parquet (a dataset per topic group, hive-partitioned by session=NAME), mat (MATLAB v7.3 "
+                     "structs, raw CAN frames included, + the sideslip reference/estimate/error), "
+                     "csv (decoded tables)."),
     ] = None,
     topics: Annotated[
         list[str] | None,
@@ -118,6 +119,11 @@ def export(
         typer.Option("--csv", help="Write decoded GNSS logs, CAN roles, optical data and events as CSV into DIR."),
     ] = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace existing output files.")] = False,
+    mat_version: Annotated[
+        str,
+        typer.Option("--mat-version", help="With --format mat: 7.3 (HDF5, streamed with bounded memory; default) "
+                     "or 5 (scipy.io: each group held in memory, at most 2 GB per variable)."),
+    ] = "7.3",
 ) -> None:
     """Get data out of a session: CANape/asammdf, pandas/Polars/DuckDB, MATLAB, RTKLIB, NovAtel tools, spreadsheets."""
     from rig.export import (
@@ -144,7 +150,8 @@ def export(
         else:
             fn = {_Format.MDF4: export_mdf4, _Format.PARQUET: export_parquet, _Format.MAT: export_mat}[fmt]
             with _progress(f"exporting {fmt.value}") as progress:
-                report = fn(file, target, topics=topics, overwrite=overwrite, progress=progress)
+                kw = {"version": mat_version} if fmt is _Format.MAT else {}
+                report = fn(file, target, topics=topics, overwrite=overwrite, progress=progress, **kw)
             _print_report(report)
     if raw_gnss is not None:
         report = export_raw_gnss(file, raw_gnss, overwrite=overwrite)

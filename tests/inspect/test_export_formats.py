@@ -1,9 +1,12 @@
-"""``rig export --format mdf4|parquet|mat``: read back with asammdf, pyarrow (+ DuckDB) and scipy.io, values equal
-to what the session holds (rig.dataset), units present, CAN raw frames decodable with the session's DBC."""
+"""``rig export --format mdf4|parquet|mat``: read back with asammdf, pyarrow (+ DuckDB), h5py, mat73 and hdf5storage
+(MAT v7.3) and scipy.io (MAT v5), values equal to what the session holds (rig.dataset), units present, CAN raw
+frames decodable with the session's DBC (MDF4) or byte-equal to the recorded ones (MAT)."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -14,7 +17,7 @@ from rig.dataset import load_session
 from rig.export import export_mat, export_mdf4, export_parquet, iter_groups, open_stream, unit_suffix
 from tests.dataset.synth import DBC, Synth, utc
 from tests.dataset.synth import write_session as write_dataset_session
-from vsccore.errors import SessionFileError
+from vsccore.errors import ConfigError, SessionFileError
 
 runner = CliRunner()
 
@@ -116,24 +119,207 @@ def test_mdf4_reads_back_with_asammdf_and_decodes_the_bus_log(ds: Synth, tmp_pat
         assert np.max(np.abs(np.radians(yaw_sig.samples.astype(float)) - ds.yaw_rate)) < 2e-3
 
 
-def test_mat_structs_with_units_and_the_sideslip(ds: Synth, tmp_path: Path) -> None:
-    from scipy.io import loadmat
+def _mat_char(d: Any) -> str:
+    """A MAT v7.3 1×L char (or MATLAB's empty char) as text."""
+    assert d.attrs["MATLAB_class"] == b"char" and d.attrs["MATLAB_int_decode"] == 2
+    if d.attrs.get("MATLAB_empty"):
+        assert d[()].tolist() == [0, 0]
+        return ""
+    assert d.shape[1] == 1  # 1×L in MATLAB is (L, 1) in HDF5
+    return str(d[()].astype("<u2").tobytes().decode("utf-16-le"))
 
-    report = export_mat(ds.base, tmp_path)
-    m = loadmat(report.files[0].path, simplify_cells=True)
-    bestpos = m["gnss_rover_a_bestpos"]
-    ref = load_session(ds.base)._table("/gnss/rover_a/bestpos")
-    assert np.asarray(bestpos["lat_deg"]).tolist() == ref["lat_deg"].tolist()
-    assert bestpos["units"]["lat_deg"] == "deg" and bestpos["units"]["time_ns"] == "ns"
-    roles = m["can_can0_roles"]
-    assert roles["units"]["yaw_rate_radps"] == "rad/s"
-    assert "can_can0_frames" not in m and m["session"]["name"] == ds.base.name
+
+def _mat_field(d: Any) -> Any:
+    """A MAT v7.3 struct field as rows: a column (HDF5 (1, N)) as 1-D, an N×W matrix (HDF5 (W, N)) as 2-D, an
+    N×W char matrix as its space-padded rows stripped."""
+    cls = d.attrs["MATLAB_class"]
+    v = d[()]
+    if cls == b"char":
+        return [bytes(r.astype("<u2").tobytes()).decode("utf-16-le").rstrip(" ") for r in v.T]
+    if cls == b"logical":
+        assert d.attrs["MATLAB_int_decode"] == 1 and v.dtype == np.uint8
+        v = v.astype(bool)
+    return v[0] if v.shape[0] == 1 else v.T
+
+
+def _fields(g: Any) -> list[str]:
+    return [bytes(a).decode() for a in g.attrs["MATLAB_fields"]]
+
+
+@pytest.mark.parametrize("chunk_bytes", [4096, 256 << 10])
+def test_mat73_reads_back_with_h5py_equal_to_the_dataset(ds: Synth, tmp_path: Path, chunk_bytes: int) -> None:
+    """MAT v7.3 (HDF5 behind MATLAB's userblock): every field of a struct equals the session's arrays, with
+    units, transposed as MATLAB stores it; the CAN frames byte-equal to the recorded frames. Small chunks make
+    every field stream through many chunk writes."""
+    import h5py
+    import scipy.io
+
+    from rig.export_mat import export_mat as export_mat_file
+
+    report = export_mat_file(ds.base, tmp_path, chunk_bytes=chunk_bytes)
+    (f,) = report.files
+    assert f.path == tmp_path / f"{ds.base.name}.mat" and f.source.startswith("MAT v7.3")
+    head = f.path.read_bytes()[:512]
+    text = head[:116].decode("ascii")
+    assert re.fullmatch(r"MATLAB 7\.3 MAT-file, Platform: [^,]+, Created on: "
+                        r"(Mon|Tue|Wed|Thu|Fri|Sat|Sun) [A-Z][a-z]{2} \d\d \d\d:\d\d:\d\d \d{4} "
+                        r"HDF5 schema 1\.00 \. *", text), text
+    assert head[116:124] == bytes(8) and head[124:128] == b"\x00\x02IM" and head[128:] == bytes(384)
+    with pytest.raises(NotImplementedError):  # scipy.io reads v5 only: it names the HDF5 reader
+        scipy.io.loadmat(f.path)
+    session = load_session(ds.base)
+    with h5py.File(f.path, "r") as h:
+        assert h.userblock_size == 512
+        g = h["gnss_rover_a_bestpos"]
+        assert g.attrs["MATLAB_class"] == b"struct"
+        ref = session._table("/gnss/rover_a/bestpos")
+        assert _fields(g)[:3] == ["time_ns", "time_s", "host_ns"] and _fields(g)[-1] == "units"
+        assert set(_fields(g)) == set(g)
+        assert g["lat_deg"].shape == (1, len(ref)) and g["lat_deg"].attrs["MATLAB_class"] == b"double"
+        assert _mat_field(g["time_ns"]).tolist() == ref.time_ns.tolist()
+        t_s = _mat_field(g["time_s"])
+        assert np.allclose(np.diff(t_s), np.diff(ref.time_ns) / 1e9) and 0 <= t_s[0] < 10
+        for name in ref.columns:
+            got = _mat_field(g[name])
+            want = ref[name]
+            if want.dtype.kind == "U":
+                assert got == want.tolist(), name
+            else:
+                assert np.array_equal(got, want, equal_nan=True), name
+        assert g["gps_time_ns"].attrs["MATLAB_class"] == b"int64"  # ns exact, not rounded through double
+        assert _mat_char(g["units"]["lat_deg"]) == "deg" and _mat_char(g["units"]["time_ns"]) == "ns"
+        assert _mat_char(g["units"]["sol_status"]) == "" and g["units"].attrs["MATLAB_class"] == b"struct"
+        assert g["lat_deg"].attrs["units"] == b"deg"
+        # events: text columns as char matrices
+        ev = h["events"]
+        evt = session._table("/rig/events")
+        order = np.argsort(_mat_field(ev["time_ns"]), kind="stable")  # the dataset sorts by time, the export
+        assert [_mat_field(ev["text"])[i] for i in order] == evt["text"].tolist()  # keeps the recorded order
+        # CAN roles and DAQ volts equal the dataset's decode
+        roles = h["can_can0_roles"]
+        assert _mat_char(roles["units"]["yaw_rate_radps"]) == "rad/s"
+        yaw, ok = _mat_field(roles["yaw_rate_radps"]), _mat_field(roles["yaw_rate_ok"])
+        assert roles["yaw_rate_ok"].attrs["MATLAB_class"] == b"logical"
+        ref_yaw = session.can_roles("can0")["yaw_rate"]
+        assert np.sort(yaw[ok]).tolist() == pytest.approx(np.sort(ref_yaw.values[ref_yaw.ok]).tolist())
+        d1 = session.daq("daq1")
+        name = d1.channel_names[0]
+        daq = h["daq_daq1"]
+        assert daq[f"{name}_V"].attrs["MATLAB_class"] == b"single"
+        assert np.allclose(_mat_field(daq[f"{name}_V"]), d1.channel(name), atol=1e-6)
+        # raw CAN frames, byte-equal to the recorded ones
+        fr = h["can_can0_frames"]
+        rec = session.can_frames("can0").records
+        assert _mat_char(fr["channel"]) == "can0"
+        data = _mat_field(fr["data"])
+        assert fr["data"].shape == (8, rec.shape[0]) and fr["data"].attrs["MATLAB_class"] == b"uint8"
+        assert np.array_equal(data, rec["data"])
+        assert _mat_field(fr["can_id"]).tolist() == (rec["can_id"] & 0x1FFFFFFF).tolist()
+        assert _mat_field(fr["dlc"]).tolist() == rec["dlc"].tolist()
+        assert _mat_field(fr["len"]).tolist() == rec["len"].tolist()
+        assert _mat_field(fr["host_ns"]).tolist() == rec["host_ts_ns"].tolist()
+        assert _mat_field(fr["device_ns"]).tolist() == rec["device_ts_ns"].tolist()
+        # the recorded block time (live time base) vs the dataset's after-the-fact mapping: within 1 ms
+        assert np.max(np.abs(_mat_field(fr["time_ns"]) - session.can_frames("can0").time_ns)) < 1_000_000
+        s = h["session"]
+        assert _mat_char(s["name"]) == ds.base.name and s["start_ns"].shape == (1, 1)
+        if chunk_bytes == 4096:  # streamed: many chunks per field, each (1, rows) along MATLAB's rows
+            ds_t = daq["time_ns"]
+            assert ds_t.chunks[0] == 1 and ds_t.id.get_num_chunks() == -(-ds_t.shape[1] // ds_t.chunks[1]) > 5
     # this short synthetic session has no valid RTK baseline: the sideslip struct is skipped, said in a warning
     assert any(w.startswith("sideslip: reference and estimate not exported") for w in report.warnings)
 
 
+def test_mat73_loads_with_mat73_and_hdf5storage(ds: Synth, tmp_path: Path) -> None:
+    """Two independent MAT v7.3 readers load the file: mat73 (MATLAB's struct/char/logical/numeric classes) and
+    hdf5storage (which also follows MATLAB_fields and reads the char matrices row by row)."""
+    mat73 = pytest.importorskip("mat73")
+    hdf5storage = pytest.importorskip("hdf5storage")
+    report = export_mat(ds.base, tmp_path)
+    path = report.files[0].path
+    session = load_session(ds.base)
+    ref = session._table("/gnss/rover_a/bestpos")
+    m = mat73.loadmat(str(path))
+    b = m["gnss_rover_a_bestpos"]
+    assert np.asarray(b["lat_deg"]).tolist() == ref["lat_deg"].tolist()
+    assert b["units"]["lat_deg"] == "deg" and b["units"]["sol_status"] == ""
+    w = len(ref["sol_status"][0].rstrip())
+    # mat73 joins a char matrix's characters in MATLAB's column-major order: N rows, W columns
+    sol = np.asarray(list(b["sol_status"])).reshape(-1, len(ref)).T
+    assert ["".join(r).rstrip() for r in sol] == ref["sol_status"].tolist() and w > 0
+    rec = session.can_frames("can0").records
+    assert np.array_equal(np.asarray(m["can_can0_frames"]["data"]), rec["data"])
+    assert m["session"]["name"] == ds.base.name
+    h = hdf5storage.loadmat(str(path))
+    hb = h["gnss_rover_a_bestpos"]
+    assert list(hb.dtype.names[:3]) == ["time_ns", "time_s", "host_ns"]
+    assert [str(x).rstrip() for x in np.ravel(hb["sol_status"][0])] == ref["sol_status"].tolist()
+    assert np.ravel(hb["lat_deg"][0]).tolist() == ref["lat_deg"].tolist()
+
+
+def test_mat73_fields_stream_in_whole_chunks_and_widen(tmp_path: Path) -> None:
+    """A field never buffers a whole chunk (bounded memory, whatever the rows); longer text and CAN FD payloads
+    arriving later widen the matrix, the earlier rows padded with spaces / zeros."""
+    import h5py
+
+    from rig.export_mat import _Struct
+
+    rng = np.random.default_rng(1)
+    path = tmp_path / "w.h5"
+    words = np.asarray(["a", "bb", "", "ccc", "a much longer text", "β°"], dtype=object)
+    with h5py.File(path, "w", rdcc_nbytes=0) as f:
+        st = _Struct(f, "s", chunk_bytes=1024)
+        sent_t, sent_txt, sent_data = [], [], []
+        for k in range(40):
+            n = int(rng.integers(1, 300))
+            t = np.arange(n, dtype=np.int64) + 10_000 * k
+            txt = words[rng.integers(0, 2 if k < 10 else len(words), n)]
+            width = 8 if k < 20 else 64
+            data = rng.integers(0, 256, (n, width), dtype=np.uint8)
+            st.append({"time_ns": t, "text": txt, "data": data}, {"time_ns": "ns"})
+            sent_t.append(t)
+            sent_txt.extend(txt.tolist())
+            sent_data.append(np.pad(data, ((0, 0), (0, 64 - width))))
+            for fld in st.fields.values():
+                assert fld.n_pending < fld.chunk_rows  # whole chunks went out as soon as there were any
+        st.close()
+    with h5py.File(path, "r") as f:
+        g = f["s"]
+        assert _mat_field(g["time_ns"]).tolist() == np.concatenate(sent_t).tolist()
+        assert _mat_field(g["text"]) == sent_txt
+        assert g["text"].shape[0] == len("a much longer text")
+        assert np.array_equal(_mat_field(g["data"]), np.concatenate(sent_data))
+        assert _fields(g) == ["time_ns", "text", "data", "units"]
+        assert _mat_char(g["units"]["time_ns"]) == "ns" and _mat_char(g["units"]["text"]) == ""
+
+
+def test_mat_v5_through_scipy(ds: Synth, tmp_path: Path) -> None:
+    """--mat-version 5: scipy.io reads the same structs back (text as cell arrays), raw CAN frames included."""
+    from scipy.io import loadmat
+
+    report = export_mat(ds.base, tmp_path, version="5")
+    assert report.files[0].source.startswith("MAT v5")
+    m = loadmat(report.files[0].path, simplify_cells=True)
+    bestpos = m["gnss_rover_a_bestpos"]
+    session = load_session(ds.base)
+    ref = session._table("/gnss/rover_a/bestpos")
+    assert np.asarray(bestpos["lat_deg"]).tolist() == ref["lat_deg"].tolist()
+    assert np.asarray(bestpos["gps_time_ns"]).tolist() == ref["gps_time_ns"].tolist()
+    assert list(bestpos["sol_status"]) == ref["sol_status"].tolist()
+    assert bestpos["units"]["lat_deg"] == "deg" and bestpos["units"]["time_ns"] == "ns"
+    assert m["can_can0_roles"]["units"]["yaw_rate_radps"] == "rad/s"
+    frames = m["can_can0_frames"]
+    assert frames["channel"] == "can0"
+    assert np.array_equal(frames["data"], session.can_frames("can0").records["data"])
+    assert m["session"]["name"] == ds.base.name
+    with pytest.raises(ConfigError, match="--mat-version"):
+        export_mat(ds.base, tmp_path / "x", version="7")
+
+
 def test_mat_sideslip_on_one_time_vector(tmp_path: Path) -> None:
-    """A simulated drive validates: reference, estimate and error share one time vector in the MAT file."""
+    """A simulated drive validates: reference, estimate and error share one time vector in the MAT file (v7.3,
+    read with h5py and mat73; and v5, read with scipy.io)."""
+    import h5py
     from scipy.io import loadmat
 
     from rig.config import load_session as load_config
@@ -155,12 +341,22 @@ def test_mat_sideslip_on_one_time_vector(tmp_path: Path) -> None:
                            config_path=demo_config_path())
     assert rec.completed
     report = export_mat(tmp_path / "run", tmp_path / "mat", topics=["gnss_*"])
-    s = loadmat(report.files[0].path, simplify_cells=True)["sideslip"]
-    t, ref, est, err = (np.asarray(s[k]) for k in ("time_s", "reference_rad", "estimate_rad", "error_rad"))
+    assert "sideslip" in report.files[0].source
+    with h5py.File(report.files[0].path, "r") as h:
+        s = h["sideslip"]
+        t, ref, est, err = (_mat_field(s[k]) for k in ("time_s", "reference_rad", "estimate_rad", "error_rad"))
+        assert _mat_char(s["units"]["error_rad"]) == "rad"
+        assert _mat_field(s["time_ns"]).shape == t.shape
     assert t.size == ref.size == est.size == err.size > 100
     ok = np.isfinite(err)
     assert ok.sum() > 100 and np.allclose(err[ok], est[ok] - ref[ok])
-    assert s["units"]["error_rad"] == "rad"
+    mat73 = pytest.importorskip("mat73")
+    m = mat73.loadmat(str(report.files[0].path))["sideslip"]
+    assert np.array_equal(np.asarray(m["error_rad"]), err, equal_nan=True)
+    v5 = export_mat(tmp_path / "run", tmp_path / "mat5", topics=["gnss_*"], version="5")
+    s5 = loadmat(v5.files[0].path, simplify_cells=True)["sideslip"]
+    assert np.array_equal(np.asarray(s5["error_rad"]), err, equal_nan=True)
+    assert s5["units"]["error_rad"] == "rad"
 
 
 def test_groups_stream_in_bounded_batches(ds: Synth) -> None:
