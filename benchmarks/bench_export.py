@@ -1,5 +1,8 @@
 """Export a one-hour session to Parquet (issue 17's target: ≤ 30 s, peak RSS ≤ 1 GB), and optionally MDF4/MAT/CSV.
 
+``mat`` is MAT v7.3 (HDF5, streamed), ``mat5`` MAT v5 through scipy.io (each group held in memory), both
+without the sideslip validation (``validation=False``: that is ``rig validate``'s cost, not the export's).
+
 The session is the one :mod:`benchmarks.bench_validate` synthesises with the real Recorder (three GNSS
 receivers at 20 Hz with raw bytes, a 500 kbit/s CAN bus at 2000 frames/s with the simulated ECU's frames,
 eight DAQ channels at 1 kHz, the optical topic at 100 Hz), built once and cached (default
@@ -32,10 +35,17 @@ TARGET_RSS_MB = 1024.0
 _CHILD = """
 import sys
 from rig.export import export_csv, export_mat, export_mdf4, export_parquet
-fn = {"parquet": export_parquet, "mdf4": export_mdf4, "mat": export_mat, "csv": export_csv}[sys.argv[1]]
-kw = {"validation": False} if sys.argv[1] == "mat" else {}
+fmt = sys.argv[1]
+fn = {"parquet": export_parquet, "mdf4": export_mdf4, "mat": export_mat, "mat5": export_mat, "csv": export_csv}[fmt]
+kw = {"validation": False} if fmt.startswith("mat") else {}
+if fmt == "mat5":
+    kw["version"] = "5"
+seen = []
+if fmt != "csv":  # the CLI's progress bar is driven by this callback: count its updates and how far they got
+    kw["progress"] = lambda done, start, end: seen.append((done - start) / max(end - start, 1))
 report = fn(sys.argv[2], sys.argv[3], **kw)
-print(sum(f.records for f in report.files), sum(f.bytes for f in report.files), len(report.files))
+print(sum(f.records for f in report.files), sum(f.bytes for f in report.files), len(report.files), len(seen),
+      max(seen, default=-1.0))
 """
 
 
@@ -43,7 +53,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--minutes", type=float, default=60.0)
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "vsc_rig_bench_export")
-    ap.add_argument("--formats", default="parquet", help="Comma-separated: parquet, mdf4, mat, csv.")
+    ap.add_argument("--formats", default="parquet", help="Comma-separated: parquet, mdf4, mat, mat5, csv.")
     ap.add_argument("--rebuild", action="store_true")
     args = ap.parse_args()
     cache: Path = args.cache / f"{args.minutes:g}min"
@@ -69,7 +79,9 @@ def main() -> None:
             wall = time.perf_counter() - t0
             if res.returncode != 0:
                 raise SystemExit(f"{fmt} export failed:\n{res.stderr}")
-            rows, nbytes, nfiles = (int(x) for x in res.stdout.splitlines()[-1].split())  # asammdf prints too
+            last = res.stdout.splitlines()[-1].split()  # asammdf prints too
+            rows, nbytes, nfiles, updates = (int(x) for x in last[:4])
+            reached = float(last[4])
             after = resource.getrusage(resource.RUSAGE_CHILDREN)
             cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
             rss_mb = after.ru_maxrss / 1024.0  # Linux: kB; the largest child so far (each format runs alone)
@@ -77,6 +89,8 @@ def main() -> None:
             print(f"{fmt:<8} {wall:7.1f} s wall  {cpu:7.1f} s CPU  peak RSS {rss_mb:7.0f} MB  {rows} rows  "
                   f"{nbytes / 1e6:.0f} MB in {nfiles} files  (target ≤ {TARGET_S:g} s, ≤ {TARGET_RSS_MB:g} MB: "
                   f"{verdict}; load average {load0:.1f} → {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
+            if updates:
+                print(f"{'':<8} progress bar: {updates} updates, reached {reached:.0%}")
         finally:
             shutil.rmtree(out, ignore_errors=True)
 

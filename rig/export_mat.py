@@ -89,8 +89,10 @@ MAT73_USERBLOCK_BYTES = 512
 NULL_NS = int(np.iinfo(np.int64).min)
 """A missing integer-nanosecond value in a MAT file (MATLAB's ``intmin('int64')``)."""
 
-_CHUNK_BYTES = 256 << 10
-"""Uncompressed bytes of one HDF5 chunk (and so of the most a field buffers before writing)."""
+_CHUNK_BYTES = 64 << 10
+"""Uncompressed bytes of one HDF5 chunk (and so of the most a field buffers before writing). On the one-hour
+benchmark session (220 fields) 64 KiB gave a lower peak RSS than 256 KiB (386 against 414 MB), a file 3 %
+larger and no slower."""
 _GZIP_LEVEL = 1
 _MATLAB_CLASS = {
     np.dtype(np.float64): "double", np.dtype(np.float32): "single",
