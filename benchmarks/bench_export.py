@@ -1,7 +1,9 @@
 """Export a one-hour session to Parquet (issue 17's target: ≤ 30 s, peak RSS ≤ 1 GB), and optionally MDF4/MAT/CSV.
 
 ``mat`` is MAT v7.3 (HDF5, streamed), ``mat5`` MAT v5 through scipy.io (each group held in memory), both
-without the sideslip validation (``validation=False``: that is ``rig validate``'s cost, not the export's).
+without the sideslip validation (``validation=False``: that is ``rig validate``'s cost, not the export's);
+``mat+sideslip`` is MAT v7.3 as ``rig export --format mat`` runs it, with the ``sideslip`` struct computed by
+``rig.sessiondata.load_inputs`` + ``rig.validate.validate_session``, which read the whole session into memory.
 
 The session is the one :mod:`benchmarks.bench_validate` synthesises with the real Recorder (three GNSS
 receivers at 20 Hz with raw bytes, a 500 kbit/s CAN bus at 2000 frames/s with the simulated ECU's frames,
@@ -36,8 +38,9 @@ _CHILD = """
 import sys
 from rig.export import export_csv, export_mat, export_mdf4, export_parquet
 fmt = sys.argv[1]
-fn = {"parquet": export_parquet, "mdf4": export_mdf4, "mat": export_mat, "mat5": export_mat, "csv": export_csv}[fmt]
-kw = {"validation": False} if fmt.startswith("mat") else {}
+fn = {"parquet": export_parquet, "mdf4": export_mdf4, "mat": export_mat, "mat5": export_mat, "mat+sideslip": export_mat,
+      "csv": export_csv}[fmt]
+kw = {"validation": fmt == "mat+sideslip"} if fmt.startswith("mat") else {}
 if fmt == "mat5":
     kw["version"] = "5"
 seen = []
@@ -53,7 +56,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--minutes", type=float, default=60.0)
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "vsc_rig_bench_export")
-    ap.add_argument("--formats", default="parquet", help="Comma-separated: parquet, mdf4, mat, mat5, csv.")
+    ap.add_argument("--formats", default="parquet",
+                    help="Comma-separated: parquet, mdf4, mat, mat5, mat+sideslip, csv.")
     ap.add_argument("--rebuild", action="store_true")
     args = ap.parse_args()
     cache: Path = args.cache / f"{args.minutes:g}min"

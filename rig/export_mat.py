@@ -399,17 +399,18 @@ def _export_v73(stream: SessionStream, final: Path, topics: Sequence[str] | None
                 except ValueError as exc:
                     raise SessionFileError(f"{final}: {exc}") from exc
             warnings.extend(stream.warnings)
+            for s in structs.values():  # the buffered rows go out before the sideslip is computed
+                s.close()
             if validation:
                 side = _sideslip(stream, warnings)
                 if side is not None:
                     st = structs["sideslip"] = _Struct(f, "sideslip", chunk_bytes=chunk_bytes)
                     st.append(*side)
+                    st.close()
             if not structs:
                 raise AnalysisError(f"{stream.path}: nothing to export as MAT (no table topics"
                                     f"{' matching --topics' if topics else ''})")
             rows = {n: s.rows for n, s in structs.items()}
-            for s in structs.values():
-                s.close()
             st = structs["session"] = _Struct(f, "session")
             st.char("name", stream.name)
             st.scalar("start_ns", np.int64(stream.start_ns))
