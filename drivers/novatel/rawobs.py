@@ -8,9 +8,13 @@ demand, for post-processing and checks:
   hex digits) into :class:`RangeCmp` records with the bit fields of the OEM7 reference, the ADR
   roll-over resolved as the reference prescribes (``MAX_VALUE`` = 8388608 cycles);
 - :func:`decode_gpsephem` / :func:`encode_gpsephem` — GPSEPHEM (7), the decoded GPS broadcast
-  ephemeris, through the same declarative layout machinery as the typed logs (:data:`GPSEPHEM_FIELDS`).
+  ephemeris, through the same declarative layout machinery as the typed logs (:data:`GPSEPHEM_FIELDS`);
+- :func:`decode_gloephemeris` / :func:`encode_gloephemeris` — GLOEPHEMERIS (723), the decoded GLONASS
+  broadcast ephemeris (PZ-90 state vector at tb, lunisolar acceleration, τn, γn; :data:`GLOEPHEMERIS_FIELDS`).
 
-GLONASS ephemerides (GLOEPHEMERIS) are not decoded yet: post-processing is GPS-only for now.
+RANGECMP's GLONASS records (system 1 in the channel tracking status) carry the slot + 37 as PRN and
+the frequency channel + 7; their carrier phase is in cycles of 1602 + k·0.5625 MHz (L1) and
+1246 + k·0.4375 MHz (L2).
 """
 
 from __future__ import annotations
@@ -26,14 +30,21 @@ from drivers.novatel.messages import BodyFormat, RawBody
 from vsccore.errors import DecodeError, EncodeError
 
 __all__ = [
+    "GLOEPHEMERIS_FIELDS",
     "GPSEPHEM_FIELDS",
+    "GloEphemeris",
+    "GloSatType",
     "GpsEphem",
     "RangeCmp",
     "RangeCmpRecord",
     "SatSystem",
+    "decode_gloephemeris",
     "decode_gpsephem",
     "decode_rangecmp",
+    "encode_gloephemeris",
     "encode_gpsephem",
+    "glonass_l1_hz",
+    "glonass_l2_hz",
     "gpsephem_codec",
 ]
 
@@ -124,6 +135,12 @@ class RangeCmpRecord:
     def carrier_phase_valid(self) -> bool:
         return bool(self.tracking_status >> 28 & 1)
 
+    @property
+    def wavelength_m(self) -> float | None:
+        """Carrier wavelength of the signal (GLONASS: of its frequency channel); None for a signal whose
+        frequency this decoder does not know."""
+        return _wavelength_m(self.tracking_status, self.glonass_fcn)
+
 
 @dataclass(frozen=True, slots=True)
 class RangeCmp:
@@ -135,15 +152,25 @@ class RangeCmp:
     records: tuple[RangeCmpRecord, ...]
 
 
+def glonass_l1_hz(fcn: int) -> float:
+    """GLONASS L1 (G1) FDMA carrier of frequency channel ``fcn`` (−7..+6): 1602 + k·0.5625 MHz."""
+    return 1602.0e6 + fcn * 0.5625e6
+
+
+def glonass_l2_hz(fcn: int) -> float:
+    """GLONASS L2 (G2) FDMA carrier of frequency channel ``fcn`` (−7..+6): 1246 + k·0.4375 MHz."""
+    return 1246.0e6 + fcn * 0.4375e6
+
+
 def _wavelength_m(status: int, glonass_fcn: int) -> float | None:
     system = (status >> 16) & 0x7
     signal = (status >> 21) & 0x1F
     if system == SatSystem.GLONASS:
         k = glonass_fcn - 7
         if signal == 0:
-            return _C / (1602.0e6 + k * 0.5625e6)
+            return _C / glonass_l1_hz(k)
         if signal in (1, 5):
-            return _C / (1246.0e6 + k * 0.4375e6)
+            return _C / glonass_l2_hz(k)
         return None
     freq = _GPS_FREQ_HZ.get(signal) if system in (SatSystem.GPS, SatSystem.QZSS, SatSystem.SBAS) else None
     return None if freq is None else _C / freq
@@ -328,3 +355,166 @@ def encode_gpsephem(eph: GpsEphem, fmt: BodyFormat = BodyFormat.BINARY) -> RawBo
     if fmt is BodyFormat.ASCII:
         return RawBody(",".join(_GPSEPHEM.format_tokens(eph)).encode("ascii"), fmt)
     raise EncodeError(f"NovAtel GPSEPHEM: cannot encode a {fmt.value} body")
+
+
+# --- GLOEPHEMERIS ----------------------------------------------------------------------------
+
+
+class GloSatType(_OpenIntEnum):
+    """GLONASS satellite type of GLOEPHEMERIS."""
+
+    GLO_SAT = 0
+    GLO_SAT_M = 1
+    GLO_SAT_K = 2
+
+
+@dataclass(frozen=True, slots=True)
+class GloEphemeris:
+    """GLOEPHEMERIS (723): decoded GLONASS broadcast ephemeris (ICD GLONASS 5.1 immediate data, SI units).
+
+    The orbit is the PZ-90 state at the reference time tb (``ephem_week`` / ``ephem_time_ms``, in GPS
+    time) that a receiver integrates with the equations of motion of ICD A.3.1.2; the satellite
+    clock is t_sat − t_GLONASS = −τn + γn·(t − tb). ``time_offset_s`` is GLONASS minus GPS time in
+    whole seconds (3 h minus the leap seconds); ``tk_s`` the frame start in seconds of the GLONASS
+    day; ``issue`` the 15-minute interval number of tb in the day.
+    """
+
+    MESSAGE_NAME: ClassVar[str] = "GLOEPHEMERIS"
+    MESSAGE_ID: ClassVar[int] = 723
+
+    sloto: int
+    freqo: int
+    sat_type: int
+    false_iod: int
+    ephem_week: int
+    ephem_time_ms: int
+    time_offset_s: int
+    nt_day: int
+    reserved1: int
+    reserved2: int
+    issue: int
+    health: int
+    pos_x_m: float
+    pos_y_m: float
+    pos_z_m: float
+    vel_x_mps: float
+    vel_y_mps: float
+    vel_z_mps: float
+    ls_acc_x_mps2: float
+    ls_acc_y_mps2: float
+    ls_acc_z_mps2: float
+    tau_n_s: float
+    delta_tau_n_s: float
+    gamma_n: float
+    tk_s: int
+    p: int
+    ft: int
+    age_days: int
+    flags: int
+
+    @property
+    def slot(self) -> int:
+        """Orbital slot 1..24 (``sloto`` − 37)."""
+        return self.sloto - GLONASS_PRN_OFFSET
+
+    @property
+    def satellite_type(self) -> GloSatType:
+        return GloSatType(self.sat_type)
+
+    @property
+    def fcn(self) -> int:
+        """Frequency channel number −7..+6 (``freqo`` − 7)."""
+        return self.freqo - 7
+
+    @property
+    def tb_gps_s(self) -> float:
+        """Reference time tb in GPS seconds since the GPS epoch."""
+        return self.ephem_week * 604800.0 + self.ephem_time_ms / 1000.0
+
+    @property
+    def healthy(self) -> bool:
+        """Broadcast health 0-3 is good, 4-15 bad (OEM7 reference)."""
+        return self.health < 4
+
+    def position_m(self) -> tuple[float, float, float]:
+        return (self.pos_x_m, self.pos_y_m, self.pos_z_m)
+
+    def velocity_mps(self) -> tuple[float, float, float]:
+        return (self.vel_x_mps, self.vel_y_mps, self.vel_z_mps)
+
+    def lunisolar_mps2(self) -> tuple[float, float, float]:
+        return (self.ls_acc_x_mps2, self.ls_acc_y_mps2, self.ls_acc_z_mps2)
+
+
+def _h(name: str) -> FieldSpec:
+    return FieldSpec(name, "H", Kind.INT)
+
+
+def _b(name: str) -> FieldSpec:
+    return FieldSpec(name, "B", Kind.INT)
+
+
+#: GLOEPHEMERIS body in wire order (OEM7 reference; 144 bytes). Doubles print as the shortest
+#: round-tripping decimal, so the ASCII form carries the binary values exactly.
+GLOEPHEMERIS_FIELDS: tuple[FieldSpec, ...] = (
+    _h("sloto"),
+    _h("freqo"),
+    _b("sat_type"),  # GloSatType; a number in ASCII too
+    _b("false_iod"),
+    _h("ephem_week"),
+    _u("ephem_time_ms"),
+    _u("time_offset_s"),
+    _h("nt_day"),
+    _b("reserved1"),
+    _b("reserved2"),
+    _u("issue"),
+    _u("health"),
+    *(_d(n, "") for n in ("pos_x_m", "pos_y_m", "pos_z_m", "vel_x_mps", "vel_y_mps", "vel_z_mps",
+                          "ls_acc_x_mps2", "ls_acc_y_mps2", "ls_acc_z_mps2", "tau_n_s", "delta_tau_n_s", "gamma_n")),
+    _u("tk_s"),
+    _u("p"),
+    _u("ft"),
+    _u("age_days"),
+    _u("flags"),
+)
+GLOEPHEMERIS_LEN = 144
+
+_GLOEPHEMERIS = BodyCodec(cast(Any, GloEphemeris), GLOEPHEMERIS_FIELDS)
+
+
+def decode_gloephemeris(body: RawBody | bytes, fmt: BodyFormat = BodyFormat.BINARY) -> GloEphemeris:
+    """GLOEPHEMERIS body (binary bytes or the ASCII text between ``;`` and ``*``).
+
+    Raises:
+        DecodeError: the body is too short, a field does not parse (names the field), or the slot /
+            frequency channel is out of range.
+    """
+    if isinstance(body, RawBody):
+        data, fmt = body.data, body.fmt
+    else:
+        data = body
+    if fmt is BodyFormat.BINARY:
+        eph = cast(GloEphemeris, _GLOEPHEMERIS.decode_binary(data))
+    else:
+        text = data.decode("latin-1")
+        tokens: Sequence[str] = split_ascii_fields(text) if fmt is BodyFormat.ASCII else text.split()
+        eph = cast(GloEphemeris, _GLOEPHEMERIS.decode_ascii([t.strip() for t in tokens]))
+    if not 1 <= eph.slot <= 32:
+        raise DecodeError(f"NovAtel GLOEPHEMERIS: slot offset {eph.sloto} is not a GLONASS slot (38..69: slot + 37)")
+    if not 0 <= eph.freqo <= 20:
+        raise DecodeError(f"NovAtel GLOEPHEMERIS slot {eph.slot}: frequency offset {eph.freqo} out of range "
+                          "(0..20: channel + 7)")
+    return eph
+
+
+def encode_gloephemeris(eph: GloEphemeris, fmt: BodyFormat = BodyFormat.BINARY) -> RawBody:
+    """GLOEPHEMERIS body as a :class:`RawBody` ready for the frame encoders.
+
+    Raises:
+        EncodeError: a field does not fit its wire type.
+    """
+    if fmt is BodyFormat.BINARY:
+        return RawBody(_GLOEPHEMERIS.encode_binary(eph), fmt)
+    if fmt is BodyFormat.ASCII:
+        return RawBody(",".join(_GLOEPHEMERIS.format_tokens(eph)).encode("ascii"), fmt)
+    raise EncodeError(f"NovAtel GLOEPHEMERIS: cannot encode a {fmt.value} body")
