@@ -1,17 +1,24 @@
 """A synthetic, deterministic GPS + GLONASS constellation: orbits, satellite clocks, geometry.
 
-Circular Keplerian orbits with the real constellations' radius, inclination and plane layout (GPS:
-24 satellites in 6 planes at 55°; GLONASS: 24 in 3 planes at 64.8°, with the real
-frequency-channel pattern), Earth rotation included, no perturbations; each satellite clock has a
-constant offset. The GPS orbits are exactly the IS-GPS-200 broadcast-ephemeris model with e = 0,
-Δn = 0, ω = 0, no harmonic terms and OMEGA_DOT = 0 (the orbital planes are fixed in inertial
-space), so :mod:`sim_devices.gnss.ephemeris` can broadcast them without approximation and a
-post-processing engine positions with them.
+The real constellations' radius, inclination and plane layout (GPS: 24 satellites in 6 planes at
+55°; GLONASS: 24 in 3 planes at 64.8°, with the real frequency-channel pattern), Earth rotation
+included.
+
+- GPS: circular Keplerian orbits, no perturbations, a constant clock offset per satellite. They are
+  exactly the IS-GPS-200 broadcast-ephemeris model with e = 0, Δn = 0, ω = 0, no harmonic terms and
+  OMEGA_DOT = 0 (the orbital planes are fixed in inertial space), so :mod:`sim_devices.gnss.ephemeris`
+  can broadcast them without approximation and a post-processing engine positions with them.
+- GLONASS: the ICD's equations of motion (central body, J2, Earth rotation, lunisolar acceleration)
+  integrated by RK4 from the circular orbit's state at the start of each GPS week
+  (:mod:`sim_devices.gnss.glonass`), so that the broadcast state at tb, integrated by a receiver,
+  is the satellite's motion; each clock runs with a constant relative frequency offset γ from its
+  offset at the week's start (the broadcast −τn + γn·(t − tb)).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 from fractions import Fraction
@@ -20,7 +27,8 @@ import numpy as np
 import numpy.typing as npt
 import pymap3d
 
-from vsccore.gpstime import NS_PER_S
+from sim_devices.gnss.glonass import GlonassTruth
+from vsccore.gpstime import NS_PER_S, NS_PER_WEEK
 
 __all__ = ["GPS_MU", "OMEGA_E", "SPEED_OF_LIGHT", "Constellation", "GnssSystem", "SatObservation", "Satellite", "dops"]
 
@@ -117,6 +125,11 @@ class Constellation:
         self._clock_s = np.array([((7 * i) % 21 - 10) * 5.0e-6 for i in range(len(sats))])
         self._index = {sat: i for i, sat in enumerate(self.satellites)}
         self._day_phase: dict[int, tuple[FloatArray, float]] = {}
+        self._glo = np.array([i for i, s in enumerate(sats) if s.system is GnssSystem.GLONASS], dtype=np.intp)
+        # GLONASS clock rates γ (s/s): a fixed, deterministic ±2e-12 spread, from the offset at the GPS week's start
+        self._gamma = np.array([((5 * i) % 11 - 5) * 4.0e-13 if s.system is GnssSystem.GLONASS else 0.0
+                                for i, s in enumerate(sats)])
+        self.glonass_truth = _shared_truth(tuple(sats[i].prn for i in self._glo), self._glonass_kepler)
 
     def index(self, sat: Satellite) -> int:
         """Row of ``sat`` in :meth:`ecef` results."""
@@ -133,8 +146,56 @@ class Constellation:
                 float(self._n[i]))
 
     def clock_offset_s(self, sat: Satellite) -> float:
-        """Satellite clock offset from GPS time (s), constant."""
+        """Satellite clock offset from GPS time (s): constant for GPS, at the GPS week's start for GLONASS."""
         return float(self._clock_s[self._index[sat]])
+
+    def clock_rate(self, sat: Satellite) -> float:
+        """Relative frequency offset γ of the satellite clock (0 for GPS)."""
+        return float(self._gamma[self._index[sat]])
+
+    def satellite_clock_s(self, sat: Satellite, t_gps_ns: int) -> float:
+        """Satellite clock minus GPS time (s) at ``t_gps_ns``: the GPS offset, or a GLONASS clock's offset at the
+        week's start plus γ times the seconds of the week."""
+        i = self._index[sat]
+        sow = (t_gps_ns % NS_PER_WEEK) / NS_PER_S
+        return float(self._clock_s[i] + self._gamma[i] * sow)
+
+    def _glonass_kepler(self, t_s: int) -> FloatArray:
+        """States (n, 6: position m, velocity m/s; ECEF) of the GLONASS satellites on their circular orbits at the
+        whole GPS second ``t_s``: where each day's integration starts."""
+        t_ns = t_s * NS_PER_S
+        day = t_ns // (86400 * NS_PER_S)
+        r = (t_ns - day * 86400 * NS_PER_S) / NS_PER_S
+        n_phase, e_phase = self.phase_at_day(int(day))
+        g = self._glo
+        n = self._n[g]
+        u = self._arg0[g] + n_phase[g] + n * r
+        omega = self._raan[g] - e_phase - _OMEGA_E * r
+        rad = self._radius[g]
+        x_p, y_p = rad * np.cos(u), rad * np.sin(u)
+        dx_p, dy_p = -rad * n * np.sin(u), rad * n * np.cos(u)
+        ci, si = np.cos(self._inc[g]), np.sin(self._inc[g])
+        co, so = np.cos(omega), np.sin(omega)
+        x = x_p * co - y_p * ci * so
+        y = x_p * so + y_p * ci * co
+        z = y_p * si
+        vx = dx_p * co + x_p * so * _OMEGA_E - dy_p * ci * so + y_p * ci * co * _OMEGA_E
+        vy = dx_p * so - x_p * co * _OMEGA_E + dy_p * ci * co + y_p * ci * so * _OMEGA_E
+        vz = dy_p * si
+        return np.stack([x, y, z, vx, vy, vz], axis=1)
+
+    def glonass_state(self, sat: Satellite, t_gps_s: int) -> tuple[FloatArray, FloatArray]:
+        """(state (6,): ECEF position m and velocity m/s, lunisolar acceleration (3,) m/s²) of a GLONASS satellite
+        at the whole GPS second ``t_gps_s``: what it broadcasts for that tb.
+
+        Raises:
+            ValueError: ``sat`` is not a GLONASS satellite of this constellation.
+        """
+        if sat.system is not GnssSystem.GLONASS or sat not in self._index:
+            raise ValueError(f"{sat.system.value} satellite {sat.prn} is not a GLONASS satellite of the constellation")
+        row = int(np.flatnonzero(self._glo == self._index[sat])[0])
+        states = self.glonass_truth.states_ns(t_gps_s * NS_PER_S, np.zeros(len(self._glo)))
+        return states[row].copy(), self.glonass_truth.acc(float(t_gps_s))[row]
 
     def phase_at_day(self, day: int) -> tuple[FloatArray, float]:
         """(n·T mod 2π per satellite, ω_E·T mod 2π) at T = ``day`` × 86400 s, accurate to ~1e-16 rad.
@@ -172,7 +233,12 @@ class Constellation:
         x = x_p * co - y_p * ci * so
         y = x_p * so + y_p * ci * co
         z = y_p * si
-        return np.stack([x, y, z], axis=1)
+        out = np.stack([x, y, z], axis=1)
+        g = self._glo
+        if len(g):
+            dt = np.broadcast_to(np.asarray(dt_s, dtype=np.float64), self._n.shape)[g]
+            out[g] = self.glonass_truth.states_ns(t_gps_ns, dt)[:, :3]
+        return out
 
     def ecef(self, t_gps_s: float) -> FloatArray:
         """ECEF positions (m), shape (n_sat, 3), at GPS time ``t_gps_s`` (s since the GPS epoch)."""
@@ -196,6 +262,17 @@ class Constellation:
             if el[i] >= mask_deg
         ]
         return out
+
+
+_TRUTHS: dict[tuple[int, ...], GlonassTruth] = {}
+
+
+def _shared_truth(slots: tuple[int, ...], initial: Callable[[int], FloatArray]) -> GlonassTruth:
+    """One integration per set of slots for every Constellation (they are identical and deterministic)."""
+    truth = _TRUTHS.get(slots)
+    if truth is None:
+        truth = _TRUTHS.setdefault(slots, GlonassTruth(slots, initial))
+    return truth
 
 
 def dops(observations: list[SatObservation]) -> tuple[float, float, float, float, float]:

@@ -9,7 +9,7 @@ positioning engine (RTKLIB) inverts:
 - ρ: geometric range from the satellite at transmission time (light time iterated) to the antenna
   at reception, plus the Earth-rotation (Sagnac) term ω_E·(x_s·y_r − y_s·x_r)/c, as RTKLIB's
   ``geodist`` models it; the receiver clock is steered to GPS time (dt_r = 0);
-- dts: the satellite clock offset the broadcast ephemeris carries (af0);
+- dts: the satellite clock offset the broadcast ephemeris carries (GPS: af0; GLONASS: −τn + γn·(t − tb));
 - T, I_f: one atmosphere for every receiver (:func:`troposphere_m`, :func:`ionosphere_m`), so base
   and rovers see the same delays on short baselines;
 - N: an integer ambiguity per satellite and signal, constant while the signal stays locked (a gap
@@ -142,7 +142,7 @@ class ObservationGenerator:
         for geo, rho in zip(geos, rhos, strict=True):
             el = math.radians(geo.elevation_deg)
             sin_el = max(math.sin(el), 0.1)
-            clock_m = SPEED_OF_LIGHT * self.constellation.clock_offset_s(geo.sat)
+            clock_m = SPEED_OF_LIGHT * self.constellation.satellite_clock_s(geo.sat, t_gps_ns)
             tropo = troposphere_m(el, antenna.height_m)
             for band in (Band.L1, Band.L2):
                 key = (geo.sat.system, geo.sat.prn, band)

@@ -11,7 +11,8 @@ Logs: BESTPOS, BESTVEL, BESTXYZ, TIME, PSRDOP, MARKPOS, MARKTIME (MARK1 events a
 MARK2POS/MARK2TIME accepted, never fired), RANGECMP (raw observations,
 :mod:`sim_devices.gnss.observations`), GPSEPHEM (one log per visible GPS satellite; ONCHANGED
 sends a satellite's set when it is new to the receiver or its IODE changed, other triggers send all;
-:mod:`sim_devices.gnss.ephemeris`), VERSION (raw), GPGGA, and with a secondary antenna (a
+:mod:`sim_devices.gnss.ephemeris`), GLOEPHEMERIS (the same per visible GLONASS satellite, a new set
+every 30 minutes), VERSION (raw), GPGGA, and with a secondary antenna (a
 dual-antenna receiver) HEADING and HEADING2.
 """
 
@@ -23,12 +24,12 @@ from dataclasses import replace
 from pathlib import Path
 
 from drivers.novatel import Body, BodyFormat, ClockModelStatus, Heading, Heading2, MarkTime, RawBody
-from drivers.novatel.rawobs import encode_gpsephem
+from drivers.novatel.rawobs import encode_gloephemeris, encode_gpsephem
 from sim_devices.gnss import bodies
 from sim_devices.gnss.antenna import AntennaState, TruthAntenna
 from sim_devices.gnss.commands import LogFormat, SimpleCommand
 from sim_devices.gnss.constellation import Constellation, GnssSystem
-from sim_devices.gnss.ephemeris import gps_ephemeris
+from sim_devices.gnss.ephemeris import glonass_ephemeris, gps_ephemeris
 from sim_devices.gnss.error_model import GnssErrorParams, RtkParams, RtkState, RtkStateMachine, carries_gps_epoch
 from sim_devices.gnss.observations import ObservationGenerator
 from sim_devices.gnss.rawlogs import rangecmp_ascii, rangecmp_binary
@@ -128,6 +129,7 @@ class SimRover(SimReceiver):
         self._mark_time_ns: int | None = None
         self._last_mark_accepted: int | None = None
         self._ephemeris_sent: dict[int, int] = {}  # PRN -> IODE last sent ONCHANGED
+        self._glo_ephemeris_sent: dict[int, int] = {}  # slot -> tb (ms of the GPS week) last sent ONCHANGED
 
     @property
     def correction_port_path(self) -> str:
@@ -137,7 +139,8 @@ class SimRover(SimReceiver):
     # --- hooks ----------------------------------------------------------------------------------
 
     def known_logs(self) -> frozenset[str]:
-        names = set(super().known_logs()) | {"MARKPOS", "MARKTIME", "MARK2POS", "MARK2TIME", "RANGECMP", "GPSEPHEM"}
+        names = set(super().known_logs()) | {"MARKPOS", "MARKTIME", "MARK2POS", "MARK2TIME", "RANGECMP", "GPSEPHEM",
+                                                "GLOEPHEMERIS"}
         if self.secondary is not None:
             names |= {"HEADING", "HEADING2"}
         return frozenset(names)
@@ -212,6 +215,8 @@ class SimRover(SimReceiver):
             return RawBody(rangecmp_ascii(obs), BodyFormat.ASCII)
         if entry_name == "GPSEPHEM":
             return self._ephemerides(fmt, t_gps_ns)
+        if entry_name == "GLOEPHEMERIS":
+            return self._glonass_ephemerides(fmt, t_gps_ns)
         return self._common_message(entry_name, fmt, t_gps_ns)
 
     def _ephemerides(self, fmt: LogFormat, t_gps_ns: int) -> list[Body]:
@@ -226,6 +231,20 @@ class SimRover(SimReceiver):
                     continue
                 self._ephemeris_sent[eph.prn] = eph.iode1
             out.append(encode_gpsephem(eph, body_fmt))
+        return out
+
+    def _glonass_ephemerides(self, fmt: LogFormat, t_gps_ns: int) -> list[Body]:
+        out: list[Body] = []
+        body_fmt = BodyFormat.BINARY if fmt is LogFormat.BINARY else BodyFormat.ASCII
+        for geo in self.observations.geometry(self.antenna_state(t_gps_ns), t_gps_ns):
+            if geo.sat.system is not GnssSystem.GLONASS:
+                continue
+            eph = glonass_ephemeris(self.constellation, geo.sat, t_gps_ns)
+            if self.emitting_on_change:
+                if self._glo_ephemeris_sent.get(eph.slot) == eph.ephem_time_ms:
+                    continue
+                self._glo_ephemeris_sent[eph.slot] = eph.ephem_time_ms
+            out.append(encode_gloephemeris(eph, body_fmt))
         return out
 
     def _delayed(self, t_gps_ns: int) -> Solution:
