@@ -1,8 +1,11 @@
 """The replay schedule on an injected fake clock: absolute deadlines (lateness never accumulates), speed,
-loop passes, stop, and the lateness figures. Deterministic: no wall clock involved."""
+loop passes, stop, the lateness figures, and the final approach to each due time (the spin). Deterministic:
+no wall clock involved (the schedule tests wait with the clock's sleep alone, ``spin_s=0``; the spin tests
+run on a clock that advances at each reading)."""
 
 from __future__ import annotations
 
+import gc
 import threading
 from typing import Any
 
@@ -37,6 +40,25 @@ class FakeClock:
         return True
 
 
+class TickingClock(FakeClock):
+    """A fake clock that also advances ``tick_ns`` at every reading (a host clock read in a spin); its sleeps
+    end ``oversleep_ns`` late and are kept in ``targets``."""
+
+    def __init__(self, tick_ns: int, oversleep_ns: tuple[int, ...] = (0,)) -> None:
+        super().__init__(oversleep_ns=oversleep_ns)
+        self.tick = tick_ns
+        self.targets: list[int] = []
+
+    def now_ns(self) -> int:
+        t = self.t
+        self.t += self.tick
+        return t
+
+    def sleep_until_ns(self, t_ns: int, stop: threading.Event | None = None) -> bool:
+        self.targets.append(t_ns)
+        return super().sleep_until_ns(t_ns, stop)
+
+
 class RecordingBus(can.BusABC):
     """Keeps every frame sent with the fake clock's time; receives nothing."""
 
@@ -46,12 +68,14 @@ class RecordingBus(can.BusABC):
         self.clock = clock
         self.incoming = [can.Message(arbitration_id=0x700, data=b"\x01") for _ in range(incoming)]
         self.sent: list[tuple[int, can.Message]] = []
+        self.gc_enabled: list[bool] = []
         self._stop_after = stop_after
         self._stop = stop
         self.channel_info = "fake bus"
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        self.sent.append((self.clock.now_ns(), msg))
+        self.sent.append((self.clock.t, msg))  # the clock's time without reading it (a TickingClock advances)
+        self.gc_enabled.append(gc.isenabled())
         if self._stop is not None and len(self.sent) == self._stop_after:
             self._stop.set()
 
@@ -76,6 +100,7 @@ def periodic(n: int, period_ms: float = 10.0, ident: int = 0x101) -> ReplayPlan:
 
 
 def run(plan: ReplayPlan, clock: FakeClock, **kw: Any) -> tuple[RecordingBus, Any]:
+    kw.setdefault("spin_s", 0.0)
     bus = RecordingBus(clock)
     try:
         stats = Replayer(plan, bus, clock, **kw).run()
@@ -141,7 +166,7 @@ def test_stop_ends_the_replay_between_frames() -> None:
     stop = threading.Event()
     bus = RecordingBus(clock, stop_after=7, stop=stop)
     try:
-        stats = Replayer(periodic(100), bus, clock, passes=None, stop=stop, lead_s=0.0).run()
+        stats = Replayer(periodic(100), bus, clock, passes=None, stop=stop, lead_s=0.0, spin_s=0.0).run()
     finally:
         bus.shutdown()
     assert stats.stopped and stats.frames_sent == 7 and len(bus.sent) == 7
@@ -176,13 +201,90 @@ def test_frames_the_bus_receives_meanwhile_are_drained_when_there_is_time() -> N
     clock = FakeClock()
     bus = RecordingBus(clock, incoming=500)
     try:
-        Replayer(periodic(20), bus, clock, lead_s=0.0).run()
+        Replayer(periodic(20), bus, clock, lead_s=0.0, spin_s=0.0).run()
     finally:
         bus.shutdown()
     assert not bus.incoming and len(bus.sent) == 20
     dense = RecordingBus(clock, incoming=500)
     try:
-        Replayer(periodic(20, period_ms=1.0), dense, clock, lead_s=0.0).run()
+        Replayer(periodic(20, period_ms=1.0), dense, clock, lead_s=0.0, spin_s=0.0).run()
     finally:
         dense.shutdown()
     assert len(dense.incoming) == 500  # 1 ms apart: no time to spare, nothing read
+
+
+# --- the final approach: coarse sleep, then a bounded spin on the clock ---------------------------------
+
+
+def test_the_spin_sends_on_time_when_the_sleep_wakes_late() -> None:
+    """Every sleep ends 0.9 ms late (a busy host): the player sleeps until 1.5 ms before each due time and spins
+    on the clock from there, so each frame goes out within two clock readings (10 µs each) of its due time.
+    Waiting with the sleep alone (``spin_s=0``, the player before the spin) sends every frame 0.9 ms late."""
+    plan = periodic(100)
+    clock = TickingClock(10_000, oversleep_ns=(900_000,))
+    bus, stats = run(plan, clock, lead_s=0.01, spin_s=0.0015)
+    due = stats.start_ns + plan.t_ns
+    late = np.asarray([t for t, _m in bus.sent]) - due
+    assert late.min() >= 0 and late.max() <= 20_000, late  # the reading that reached it, the lateness reading
+    assert stats.late_frames == 0 and stats.lateness_us["max"] < 20
+    assert clock.targets == (due - 1_500_000).tolist()  # one coarse sleep per frame, ending where the spin starts
+
+    plain = TickingClock(10_000, oversleep_ns=(900_000,))
+    bus, stats = run(plan, plain, lead_s=0.01, spin_s=0.0)
+    late = np.asarray([t for t, _m in bus.sent]) - (stats.start_ns + plan.t_ns)
+    assert late.min() >= 900_000 and stats.lateness_us["p50"] >= 900
+
+
+def test_a_sleep_that_ends_past_the_due_time_sends_at_once() -> None:
+    """A stall longer than the spin: no spin, the frame goes out right away, 1 ms late (2.5 - 1.5)."""
+    plan = periodic(20)
+    clock = TickingClock(10_000, oversleep_ns=(2_500_000,))
+    bus, stats = run(plan, clock, lead_s=0.01, spin_s=0.0015)
+    late = np.asarray([t for t, _m in bus.sent]) - (stats.start_ns + plan.t_ns)
+    assert np.all((late >= 1_000_000) & (late < 1_000_000 + 30_000)), late
+
+
+def test_the_spin_gives_up_on_a_clock_that_does_not_advance() -> None:
+    """A clock that stands still between sleeps (paused, governed, a test's): the spin ends after twice its
+    length of wall time and the clock's sleep finishes the wait, so the replay neither hangs nor sends early."""
+    plan = periodic(3)
+    clock = FakeClock(oversleep_ns=(300_000,))
+    bus, stats = run(plan, clock, lead_s=0.01, spin_s=0.001)
+    late = np.asarray([t for t, _m in bus.sent]) - (stats.start_ns + plan.t_ns)
+    assert late.tolist() == [300_000] * 3
+
+
+def test_stop_ends_a_spin() -> None:
+    clock = TickingClock(10_000)
+    stop = threading.Event()
+    bus = RecordingBus(clock, stop_after=7, stop=stop)
+    try:
+        stats = Replayer(periodic(100), bus, clock, passes=None, stop=stop, lead_s=0.0, spin_s=0.0015).run()
+    finally:
+        bus.shutdown()
+    assert stats.stopped and stats.frames_sent == 7
+
+
+def test_frames_sharing_a_due_time_go_out_together_after_one_wait() -> None:
+    """Frames recorded with one timestamp (a hardware-stamped burst): one coarse sleep for the group, then every
+    frame of it at its due time, in recorded order."""
+    plan = plan_of([0.0, 0.0, 0.0, 10.0, 10.0, 20.0], [1, 2, 3, 4, 5, 6])
+    clock = TickingClock(10_000)
+    bus, stats = run(plan, clock, lead_s=0.01, spin_s=0.0015)
+    late = np.asarray([t for t, _m in bus.sent]) - (stats.start_ns + plan.t_ns)
+    assert [m.arbitration_id for _t, m in bus.sent] == [1, 2, 3, 4, 5, 6]
+    assert late.min() >= 0 and late.max() < 60_000, late
+    assert len(clock.targets) == 3
+
+
+@pytest.mark.parametrize("enabled_before", [True, False])
+def test_the_collector_is_held_off_while_sending_and_restored(enabled_before: bool) -> None:
+    """No cyclic-GC pause at a due time: the collector is off during every send and back as it was afterwards."""
+    was = gc.isenabled()
+    (gc.enable if enabled_before else gc.disable)()
+    try:
+        bus, _stats = run(periodic(10), FakeClock(), lead_s=0.0)
+        assert gc.isenabled() == enabled_before
+    finally:
+        (gc.enable if was else gc.disable)()
+    assert bus.gc_enabled == [False] * 10
