@@ -60,7 +60,7 @@ from rig.config import AntennaConfig, CanConfig, DaqConfig, ReceiverConfig, Sess
 from rig.dataset import Session
 from rig.recorder import RecorderOptions
 from rig.session import RecordSession, SessionSummary
-from rig.topics import EventKind
+from rig.topics import EventKind, Severity
 from sim_devices.daq import SimDaqBackend, SimDaqLink, SimOpticalSensor, SyncPulseOutput, sim_daq_sources
 from sim_devices.gnss import (
     DEFAULT_SOLUTION_NOISE,
@@ -76,7 +76,16 @@ from sim_devices.gnss import (
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from sim_devices.vehicle import Drive, GroundTruth, Scenario, VehicleParams, demo_drive, make_scenario, simulate
 from sim_devices.vsc_ecu import EcuOutputs, VscEcu, VscEcuConfig, simulate_ecu
-from vsccore.clock import UNBOUNDED_NS, Clock, ClockGovernor, GovernorStats, Participant, ScaledClock, participant
+from vsccore.clock import (
+    UNBOUNDED_NS,
+    Clock,
+    ClockGovernor,
+    GovernorStats,
+    Participant,
+    ReleaseReason,
+    ScaledClock,
+    participant,
+)
 from vsccore.errors import ConfigError, DeviceError, SimulationError
 from vsccore.gpstime import NS_PER_S, gps_ns_to_unix_ns
 
@@ -308,6 +317,7 @@ class SimWorld:
         self._truth_lock = threading.Lock()
         self._session: RecordSession | None = None
         self._final_health: dict[str, dict[str, int]] = {}
+        self._releases_seen = 0
 
     # --- life cycle ----------------------------------------------------------------------------
 
@@ -420,8 +430,23 @@ class SimWorld:
         if worst:
             text += "; waited for " + ", ".join(f"{n} {v / 1e9:.1f} s" for n, v in worst)
         if stats.ignored:
-            text += f"; {stats.ignored} stalled participants released"
+            text += f"; {stats.ignored} participants released ({stats.safety_releases} alive, at the safety limit)"
         return text
+
+    def report_governor_releases(self) -> None:
+        """Write every participant the governed clock stopped waiting for since the last call to
+        ``/rig/events`` with its reason (an error event for a live one released at the safety limit)."""
+        if self.clock is None or self.clock.governor is None or self._truth_source is None:
+            return
+        releases, self._releases_seen = self.clock.governor.releases(self._releases_seen)
+        for rel in releases:
+            safety = rel.reason is ReleaseReason.SAFETY_LIMIT
+            self._truth_source.event(
+                EventKind.ERROR if safety else EventKind.INFO, rel.text,
+                severity=Severity.ERROR if safety else Severity.INFO, simulation=True,
+                participant=rel.participant, reason=rel.reason.name.lower(), detail=rel.detail,
+                held_wall_s=rel.held_wall_ns / 1e9,
+            )
 
     def wait_end(self, stop: threading.Event | None = None) -> bool:
         """Wait until the drive has ended on the clock; False if ``stop`` was set first."""
@@ -631,6 +656,7 @@ class SimWorld:
         self._stop_truth()
         if self.clock is not None and self._truth_source is not None:
             self._write_truth_until(self.clock.now_ns())
+            self.report_governor_releases()
             stats = self.governor_stats()
             if stats is not None:
                 self._truth_source.event(
@@ -995,6 +1021,7 @@ def record_simulated(
                 on_started(session)
             pending = sorted(actions, key=lambda a: a[0])
             while not (stop.is_set() or session.failed.is_set()):
+                world.report_governor_releases()
                 now = clock.now_ns()
                 while pending and now >= world.timebase.truth_start_ns + round(pending[0][0] * NS_PER_S):
                     pending.pop(0)[1](world, session)

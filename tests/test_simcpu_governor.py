@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import multiprocessing
+import os
 import pickle
+import select
 import threading
 import time
 from collections.abc import Iterator
@@ -11,9 +13,10 @@ from collections.abc import Iterator
 import can
 import pytest
 
+from sim_devices.gnss import SimBase, SimTimeBase
 from sim_devices.vehicle import make_scenario, simulate
 from sim_devices.vsc_ecu import VscEcu
-from vsccore.clock import UNBOUNDED_NS, ClockGovernor, ScaledClock, participant
+from vsccore.clock import UNBOUNDED_NS, ClockGovernor, ReleaseReason, ScaledClock, participant
 
 MS = 1_000_000
 
@@ -94,20 +97,172 @@ def test_a_participant_in_another_process_holds_the_same_clock(governor: ClockGo
     copy.governor.close()  # type: ignore[union-attr]
 
 
-def test_a_participant_stalled_past_the_limit_is_released() -> None:
-    gov = ClockGovernor.create(1 * MS, stall_limit_s=0.05)
+def test_a_live_participant_stalled_past_the_safety_limit_is_released_with_an_error_record() -> None:
+    gov = ClockGovernor.create(1 * MS, stall_limit_s=0.3)
     try:
         clock = ScaledClock(0, 10.0, governor=gov)
-        me = participant(clock, "gone reader", progress_ns=0)
+        me = participant(clock, "stalled device", progress_ns=0)
+        me.at(0)  # from this (live) thread
         assert clock.now_ns() <= 1 * MS
         assert _wait_until(lambda: clock.now_ns() > 100 * MS, 5.0)
-        assert gov.stats().ignored == 1
+        assert gov.stats().ignored == 1 and gov.stats().safety_releases == 1
+        releases, nxt = gov.releases()
+        assert nxt == 1 and [(r.participant, r.reason) for r in releases] == [
+            ("stalled device", ReleaseReason.SAFETY_LIMIT)]
+        assert releases[0].held_wall_ns >= 300 * MS and "safety limit" in releases[0].text
         me.at(clock.now_ns())  # it came back: governed again
         t = clock.now_ns()
         # the clock decides when it is asked: ask until it stands still at the new progress + budget
         assert _wait_until(lambda: clock.now_ns() > 0 and gov.paused_now(), 5.0)
         assert clock.now_ns() <= max(t, me.progress_ns + 1 * MS)
     finally:
+        gov.close()
+
+
+def _linked_pair(clock: ScaledClock, tag: str) -> tuple[object, object]:
+    rx = participant(clock, f"canrx:{tag}", progress_ns=UNBOUNDED_NS, value=UNBOUNDED_NS)
+    ecu = participant(clock, f"ecu:{tag}", progress_ns=UNBOUNDED_NS)
+    ecu.feeds(f"canrx:{tag}")
+    assert ecu.linked
+    return rx, ecu
+
+
+def test_a_reader_alive_but_stalled_for_longer_than_3_s_keeps_holding_the_clock() -> None:
+    """Issue 15 §4: a slow reader makes the run take longer, never worse. The governor of a recording
+    (default limits) used to release whoever held the clock for 3 s of wall time."""
+    gov = ClockGovernor.create(1 * MS)
+    reader: threading.Thread | None = None
+    go, took_first = threading.Event(), threading.Event()
+    try:
+        clock = ScaledClock(0, 100.0, governor=gov)
+        rx, ecu = _linked_pair(clock, "stalled")
+
+        def read() -> None:  # takes one frame, then is stuck (alive) until the test lets it go
+            rx.took(10 * MS)  # type: ignore[attr-defined]
+            took_first.set()
+            go.wait(30.0)
+            rx.took(20 * MS)  # type: ignore[attr-defined]
+            rx.took(20 * MS)  # type: ignore[attr-defined]
+
+        ecu.at(9 * MS)  # type: ignore[attr-defined]
+        assert clock.sleep_until_ns(10 * MS)  # the clock stands at 10 ms until the frame is sent
+        ecu.sent(10 * MS)  # type: ignore[attr-defined]
+        ecu.at(19 * MS)  # type: ignore[attr-defined]
+        reader = threading.Thread(target=read, name="stalled-reader")
+        reader.start()
+        assert took_first.wait(10.0)
+        assert clock.sleep_until_ns(20 * MS)
+        ecu.sent(20 * MS)  # type: ignore[attr-defined]
+        ecu.sent(20 * MS)  # type: ignore[attr-defined]
+        ecu.idle()  # type: ignore[attr-defined]
+        assert _wait_until(lambda: clock.now_ns() == 21 * MS and gov.paused_now())
+        held_since = time.monotonic()
+        threading.Event().wait(3.5)  # wall time passing is the condition under test
+        assert time.monotonic() - held_since >= 3.5
+        assert clock.now_ns() == 21 * MS  # the frames owed at 20 ms + the 1 ms budget, still
+        assert gov.stats().ignored == 0 and gov.releases() == ([], 0)
+        assert gov.stats().blamed_wall_ns["canrx:stalled"] >= 3_000 * MS
+        go.set()
+        reader.join(10.0)
+        assert _wait_until(lambda: clock.now_ns() > 100 * MS, 5.0)  # taken: the clock runs on
+    finally:
+        go.set()
+        if reader is not None:
+            reader.join(10.0)
+        gov.close()
+
+
+def test_a_reader_whose_thread_ended_releases_the_clock_promptly() -> None:
+    gov = ClockGovernor.create(1 * MS)
+    try:
+        clock = ScaledClock(0, 100.0, governor=gov)
+        rx, ecu = _linked_pair(clock, "dead")
+        ecu.at(9 * MS)  # type: ignore[attr-defined]
+        assert clock.sleep_until_ns(10 * MS)
+        ecu.sent(10 * MS)  # type: ignore[attr-defined]
+        ecu.at(19 * MS)  # type: ignore[attr-defined]
+        reader = threading.Thread(target=lambda: rx.took(10 * MS), name="short-lived-reader")  # type: ignore[attr-defined]
+        reader.start()
+        reader.join(10.0)  # it took a frame and ended without saying it stopped reading
+        assert clock.sleep_until_ns(20 * MS)
+        ecu.sent(20 * MS)  # type: ignore[attr-defined]
+        ecu.idle()  # type: ignore[attr-defined]
+        assert clock.now_ns() <= 21 * MS  # held for the frame owed
+        t0 = time.monotonic()
+        assert _wait_until(lambda: clock.now_ns() > 200 * MS, 5.0)
+        assert time.monotonic() - t0 < 1.5  # evidence, not a 3 s wall-time limit
+        releases, _ = gov.releases()
+        assert [(r.participant, r.reason) for r in releases] == [("canrx:dead", ReleaseReason.THREAD_ENDED)], releases
+        assert f"pid {os.getpid()} thread" in releases[0].detail
+        assert gov.stats().ignored == 1 and gov.stats().safety_releases == 0
+    finally:
+        gov.close()
+
+
+def _dying_child(clock: ScaledClock, conn: object) -> None:
+    participant(clock, "doomed device", progress_ns=50 * MS).at(50 * MS)
+    conn.send(os.getpid())  # type: ignore[attr-defined]
+    conn.recv()  # type: ignore[attr-defined]
+    os._exit(3)  # dies holding the clock, without closing its participant
+
+
+def test_a_participant_whose_process_ended_releases_the_clock_promptly(governor: ClockGovernor) -> None:
+    clock = ScaledClock(0, 1000.0, governor=governor)
+    ctx = multiprocessing.get_context("spawn")
+    parent, child = ctx.Pipe()
+    proc = ctx.Process(target=_dying_child, args=(clock, child))
+    proc.start()
+    try:
+        assert parent.poll(240.0)  # a spawned interpreter imports slowly on a loaded host
+        pid = parent.recv()
+        assert _wait_until(lambda: clock.now_ns() == 55 * MS and governor.paused_now())
+        parent.send("die")
+        t0 = time.monotonic()
+        assert _wait_until(lambda: clock.now_ns() > 500 * MS, 5.0)  # a zombie (not reaped yet) counts as ended
+        assert time.monotonic() - t0 < 1.5
+    finally:
+        proc.join(30.0)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+    assert proc.exitcode == 3
+    releases, _ = governor.releases()
+    assert [(r.participant, r.reason, r.detail) for r in releases] == [
+        ("doomed device", ReleaseReason.PROCESS_ENDED, f"pid {pid}")]
+
+
+def test_a_gnss_port_reader_that_closes_its_end_stops_holding_the_clock_at_once() -> None:
+    """A reader that stops reading holds the clock at the oldest write it has not read; when it closes
+    the port (no file open on the pty's other side any more) the receiver owes nothing and says so."""
+    gov = ClockGovernor.create(1 * MS)
+    tb = SimTimeBase.from_gps_start(2400, 345600.0, leap_seconds=18)
+    clock = tb.make_clock(50.0, governor=gov)
+    base = SimBase("base", position=(48.7758, 9.1829, 300.0), timebase=tb, clock=clock)
+    base.start()
+    fd: int | None = None
+    try:
+        fd = os.open(base.port_path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        assert select.select([fd], [], [], 30.0)[0]
+        assert os.read(fd, 65536)  # it reads once: from now on the base waits for it
+        # then reads no more: the next RTCM epoch (1 s of simulated time) stays unread and holds the clock
+        assert _wait_until(lambda: gov.paused_now() and gov.stats().blamed_wall_ns.get("gnss:base", 0) > 0, 30.0)
+        threading.Event().wait(0.3)  # the writes of the epoch's burst leave at the port's baud rate
+        held_at = clock.now_ns()
+        threading.Event().wait(0.3)
+        assert clock.now_ns() == held_at and gov.releases() == ([], 0)  # held at the first write not read
+        os.close(fd)
+        fd = None
+        t0 = time.monotonic()
+        assert _wait_until(lambda: clock.now_ns() > held_at + 5 * 1_000 * MS, 10.0)  # 5 s on: 0.1 s of wall time
+        assert time.monotonic() - t0 < 1.0
+        releases, _ = gov.releases()
+        assert [(r.participant, r.reason, r.detail) for r in releases] == [
+            ("gnss:base", ReleaseReason.READER_CLOSED, "port COM1")]
+        assert gov.stats().ignored == 0  # it said so itself: nothing had to be released
+    finally:
+        if fd is not None:
+            os.close(fd)
+        base.stop()
         gov.close()
 
 

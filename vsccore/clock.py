@@ -7,6 +7,7 @@ faster than real time and tests never depend on the machine's wall clock.
 from __future__ import annotations
 
 import contextlib
+import enum
 import fcntl
 import logging
 import mmap
@@ -135,22 +136,80 @@ that reads nothing (see :meth:`Participant.feeds`)."""
 
 _HDR = 16
 """int64 words of the shared header (see :class:`ClockGovernor`)."""
-_SLOT = 12
+_SLOT = 14
 """int64 words per participant slot: progress, ignored value, blamed wall ns, a free value (a consumer's
 last taken stamp, a producer's newest sent stamp), the consumer slot + 1 (0: none), the producer's
 previous sent stamp, the frames with the newest stamp (sent or taken), those with the previous stamp
-(sent), then the name."""
-(_S_PROGRESS, _S_IGNORED, _S_BLAMED, _S_VALUE, _S_PEER, _S_PREV, _S_COUNT, _S_PREV_COUNT) = range(8)
-_S_NAME = 8
+(sent), the pid of its process, the native id of the thread that does its work (0: not known yet),
+then the name."""
+(_S_PROGRESS, _S_IGNORED, _S_BLAMED, _S_VALUE, _S_PEER, _S_PREV, _S_COUNT, _S_PREV_COUNT, _S_PID, _S_TID) = range(10)
+_S_NAME = 10
 ALL_FRAMES = 1 << 62
 """Count of a consumer's first stamp after it (re)connected: what was sent before is not owed."""
 _MAX_SLOTS = 64
 _NAME_BYTES = (_SLOT - _S_NAME) * 8
-_MAGIC = 0x56534348  # "VSCH": slot layout 2
-(_H_MAGIC, _H_SLOTS, _H_PAUSED, _H_HIGH, _H_CLAMP_SINCE, _H_OFF, _H_PAUSES, _H_IGNORED) = range(8)
+_MAGIC = 0x56534349  # "VSCI": slot layout 3 (pid, thread, release records)
+(_H_MAGIC, _H_SLOTS, _H_PAUSED, _H_HIGH, _H_CLAMP_SINCE, _H_OFF, _H_PAUSES, _H_IGNORED, _H_RELEASES,
+ _H_SAFETY) = range(10)
+_REC = 8
+"""int64 words per release record: slot, reason, monotonic ns, clock ns, held wall ns, then the detail."""
+_R_DETAIL = 5
+_DETAIL_BYTES = (_REC - _R_DETAIL) * 8
+_MAX_RECS = 64
+"""Release records kept (a ring): more than the readers of :meth:`ClockGovernor.releases` fall behind by."""
+_REC0 = _HDR + _MAX_SLOTS * _SLOT
 _NEVER = -(1 << 63)
 STAMP_TOLERANCE_NS = 2_000
 """A consumer's stamp comes back through float seconds (and socketcand's µs): frames this close count as taken."""
+SAFETY_LIMIT_S = 60.0
+"""Default last-resort limit (s of wall time) on one continuous hold of a participant that is alive."""
+_CHECK_AFTER_NS = 50_000_000
+"""A hold this long (wall ns) makes the clock look whether the participant holding it is still there."""
+_CHECK_EVERY_NS = 100_000_000
+"""Wall ns between two such looks (per copy of the governor)."""
+
+
+class ReleaseReason(enum.IntEnum):
+    """Why the governed clock stopped waiting for a participant (see :class:`GovernorRelease`)."""
+
+    PROCESS_ENDED = 1
+    """The participant's process has ended (or is a zombie)."""
+    THREAD_ENDED = 2
+    """The thread that did the participant's work has ended."""
+    READER_CLOSED = 3
+    """The reader closed its end (port closed, adapter unplugged, bus shut down): nothing is owed."""
+    SAFETY_LIMIT = 4
+    """Alive, but held simulated time for the governor's safety limit of wall time: the last resort."""
+
+    @property
+    def text(self) -> str:
+        return {
+            ReleaseReason.PROCESS_ENDED: "its process has ended",
+            ReleaseReason.THREAD_ENDED: "its thread has ended",
+            ReleaseReason.READER_CLOSED: "its reader closed its end",
+            ReleaseReason.SAFETY_LIMIT: "it held simulated time for the safety limit (alive but stalled)",
+        }[self]
+
+
+@dataclass(frozen=True, slots=True)
+class GovernorRelease:
+    """One participant the governed clock stopped waiting for, and why (written to ``/rig/events``)."""
+
+    participant: str
+    reason: ReleaseReason
+    detail: str
+    """What the participant said (a port name …) or what the governor saw (pid, thread id)."""
+    clock_ns: int
+    """Simulated time at the release."""
+    held_wall_ns: int
+    """Wall time (ns) the clock had been standing still when it let go (0: nothing was held)."""
+
+    @property
+    def text(self) -> str:
+        detail = f" ({self.detail})" if self.detail else ""
+        held = (f" after holding simulated time for {self.held_wall_ns / 1e9:.1f} s of wall time"
+                if self.held_wall_ns else "")
+        return f"governed clock: no longer waits for {self.participant}: {self.reason.text}{detail}{held}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -163,9 +222,12 @@ class GovernorStats:
     pauses: int
     """Number of times the clock started holding back."""
     ignored: int
-    """Participants released because they held the clock longer than the stall limit."""
+    """Participants that held the clock and were released: gone (process or thread ended) or, alive, at
+    the safety limit."""
     blamed_wall_ns: dict[str, int]
     """Paused wall time per participant that was the furthest behind."""
+    safety_releases: int = 0
+    """Of ``ignored``: alive participants released at the safety limit (the run's figures may suffer)."""
 
     def effective_speed(self, speed: float, wall_ns: int) -> float:
         """The speed actually achieved over ``wall_ns`` of wall time at nominal ``speed``."""
@@ -175,7 +237,8 @@ class GovernorStats:
 
     def as_dict(self) -> dict[str, object]:
         return {"budget_ns": self.budget_ns, "paused_wall_ns": self.paused_wall_ns, "pauses": self.pauses,
-                "ignored": self.ignored, "blamed_wall_ns": dict(self.blamed_wall_ns)}
+                "ignored": self.ignored, "safety_releases": self.safety_releases,
+                "blamed_wall_ns": dict(self.blamed_wall_ns)}
 
 
 class ClockGovernor:
@@ -196,8 +259,15 @@ class ClockGovernor:
     :meth:`now_ns`, so the clock runs again the moment the consumer has taken its frames — nobody
     polls for it.
 
-    A participant that holds the clock longer than ``stall_limit_s`` of wall time (a reader that
-    went away) is released with a log warning, until its progress (or what it owes) changes.
+    Only a participant that is really gone is released (until its progress, or what it owes,
+    changes): while the clock stands still for a participant, every copy looks (every 0.1 s, from
+    0.05 s of standing still on) whether the process of the one to blame, or the thread that did its
+    work, has ended. A reader that closes its end (a port closed, an adapter unplugged) says so itself
+    (:meth:`Participant.not_reading`, :meth:`Participant.reader_closed`) and owes nothing. A
+    participant that is alive but slow holds the clock however long it takes: the session takes
+    longer, its figures do not get worse. Only as a last resort, after ``stall_limit_s`` of wall
+    time on end (default :data:`SAFETY_LIMIT_S`), is a live participant released, with a log error.
+    Every release is kept as a :class:`GovernorRelease` (:meth:`releases`) for the session's events.
     """
 
     def __init__(self, path: str, budget_ns: int, stall_limit_s: float, *, create: bool) -> None:
@@ -207,7 +277,7 @@ class ClockGovernor:
         self.budget_ns = int(budget_ns)
         self.stall_limit_ns = int(stall_limit_s * 1e9)
         self._owner = create
-        size = (_HDR + _MAX_SLOTS * _SLOT) * 8
+        size = (_REC0 + _MAX_RECS * _REC) * 8
         flags = os.O_RDWR | (os.O_CREAT | os.O_EXCL if create else 0)
         self._fd = os.open(path, flags, 0o600)
         try:
@@ -229,9 +299,10 @@ class ClockGovernor:
         self._tlock = threading.Lock()
         self._final = (0, 0)
         self._stats: GovernorStats | None = None
+        self._next_check_ns = 0
 
     @classmethod
-    def create(cls, budget_ns: int, stall_limit_s: float = 3.0) -> ClockGovernor:
+    def create(cls, budget_ns: int, stall_limit_s: float = SAFETY_LIMIT_S) -> ClockGovernor:
         """A new shared state (removed again by :meth:`close` of this copy)."""
         folder = "/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir()
         path = os.path.join(folder, f"vsc-clock-{os.getpid()}-{uuid.uuid4().hex[:12]}")
@@ -278,6 +349,8 @@ class ClockGovernor:
             names = self.names()
             if reuse and name in names:
                 base = _HDR + names.index(name) * _SLOT
+                w[base + _S_PID] = os.getpid()
+                w[base + _S_TID] = 0
                 w[base + _S_COUNT] = ALL_FRAMES
                 w[base + _S_VALUE] = value
                 w[base + _S_PROGRESS] = progress_ns
@@ -293,6 +366,8 @@ class ClockGovernor:
             w[base + _S_PREV] = value
             w[base + _S_COUNT] = ALL_FRAMES
             w[base + _S_PREV_COUNT] = 0
+            w[base + _S_PID] = os.getpid()
+            w[base + _S_TID] = 0
             for i in range(_SLOT - _S_NAME):
                 w[base + _S_NAME + i] = int.from_bytes(raw[8 * i: 8 * i + 8], "little", signed=True)
             w[_H_SLOTS] = n + 1
@@ -302,6 +377,11 @@ class ClockGovernor:
         """Set a slot's progress (one writer per slot: an aligned 8-byte store needs no lock)."""
         if self._fd >= 0:
             self._w[_HDR + slot * _SLOT + _S_PROGRESS] = progress_ns
+
+    def set_thread(self, slot: int, tid: int) -> None:
+        """Name the thread (native id) that does slot ``slot``'s work: its end releases the slot."""
+        if self._fd >= 0:
+            self._w[_HDR + slot * _SLOT + _S_TID] = tid
 
     def set_value(self, slot: int, value: int) -> None:
         """Set a slot's free value (a consumer's last taken stamp, for its producer to see)."""
@@ -426,17 +506,77 @@ class ClockGovernor:
                     if since == 0:
                         w[_H_CLAMP_SINCE] = mono
                         w[_H_PAUSES] += 1
-                    elif mono - since > self.stall_limit_ns:
-                        w[_HDR + who * _SLOT + _S_IGNORED] = limit - self.budget_ns
-                        w[_H_IGNORED] += 1
-                        w[_H_CLAMP_SINCE] = 0
-                        log.warning("governed clock: %s held simulated time for %.1f s of wall time; released",
-                                    self.names()[blame], (mono - since) / 1e9)
+                    elif mono - since > _CHECK_AFTER_NS and mono >= self._next_check_ns:
+                        self._next_check_ns = mono + _CHECK_EVERY_NS
+                        self._release_if_gone(w, who, blame, limit - self.budget_ns, t, mono - since)
             else:
                 w[_H_CLAMP_SINCE] = 0
             t = max(t, high)
             w[_H_HIGH] = t
             return t
+
+    def _release_if_gone(self, w: memoryview, who: int, blame: int, progress: int, t: int, held: int) -> None:
+        """Release slot ``who`` (held back at ``progress`` by slot ``blame``) if ``blame`` is gone, or at
+        the safety limit; with the lock held."""
+        reason, detail = _gone(int(w[_HDR + blame * _SLOT + _S_PID]), int(w[_HDR + blame * _SLOT + _S_TID]))
+        if reason is None and held > self.stall_limit_ns:
+            reason, detail = ReleaseReason.SAFETY_LIMIT, f"limit {self.stall_limit_ns / 1e9:g} s"
+            w[_H_SAFETY] += 1
+        if reason is None:
+            return
+        w[_HDR + who * _SLOT + _S_IGNORED] = progress
+        w[_H_IGNORED] += 1
+        w[_H_CLAMP_SINCE] = 0
+        rel = self._record(w, blame, reason, detail, t, held)
+        if reason is ReleaseReason.SAFETY_LIMIT:
+            log.error("%s: the run's timing may suffer", rel.text)
+        else:
+            log.warning("%s", rel.text)
+
+    def _record(self, w: memoryview, slot: int, reason: ReleaseReason, detail: str, t: int,
+                held: int) -> GovernorRelease:
+        k = int(w[_H_RELEASES])
+        base = _REC0 + (k % _MAX_RECS) * _REC
+        w[base] = slot
+        w[base + 1] = int(reason)
+        w[base + 2] = time.monotonic_ns()
+        w[base + 3] = t
+        w[base + 4] = held
+        raw = detail.encode("utf-8")[:_DETAIL_BYTES].ljust(_DETAIL_BYTES, b"\0")
+        for i in range(_REC - _R_DETAIL):
+            w[base + _R_DETAIL + i] = int.from_bytes(raw[8 * i: 8 * i + 8], "little", signed=True)
+        w[_H_RELEASES] = k + 1
+        return self._release_at(w, k)
+
+    def _release_at(self, w: memoryview, k: int) -> GovernorRelease:
+        base = _REC0 + (k % _MAX_RECS) * _REC
+        slot = int(w[base])
+        raw = b"".join(int(w[base + _R_DETAIL + i]).to_bytes(8, "little", signed=True) for i in range(_REC - _R_DETAIL))
+        names = self.names()
+        return GovernorRelease(
+            participant=names[slot] if 0 <= slot < len(names) else f"slot {slot}",
+            reason=ReleaseReason(int(w[base + 1])),
+            detail=raw.rstrip(b"\0").decode("utf-8", "replace"),
+            clock_ns=int(w[base + 3]),
+            held_wall_ns=int(w[base + 4]),
+        )
+
+    def note_release(self, slot: int, reason: ReleaseReason, detail: str = "") -> None:
+        """Record that participant ``slot`` no longer holds the clock for ``reason`` (it said so itself,
+        e.g. its reader closed its end); nothing is released by this call."""
+        with contextlib.suppress(ValueError), self._locked() as w:
+            rel = self._record(w, slot, reason, detail, int(w[_H_HIGH]), 0)
+            log.info("%s", rel.text)
+
+    def releases(self, start: int = 0) -> tuple[list[GovernorRelease], int]:
+        """Release records from number ``start`` on, and the number to ask from next time (records
+        more than the ring holds behind are lost; the count says how many were made)."""
+        if self._fd < 0:
+            return [], start
+        with self._locked() as w:
+            end = int(w[_H_RELEASES])
+            first = max(start, end - _MAX_RECS)
+            return [self._release_at(w, k) for k in range(first, end)], end
 
     def high_ns(self) -> int:
         """The highest time the governed clock has handed out."""
@@ -467,9 +607,45 @@ class ClockGovernor:
             paused_wall_ns=int(w[_H_PAUSED]),
             pauses=int(w[_H_PAUSES]),
             ignored=int(w[_H_IGNORED]),
+            safety_releases=int(w[_H_SAFETY]),
             blamed_wall_ns={nm: int(w[_HDR + i * _SLOT + _S_BLAMED]) for i, nm in enumerate(names)
                             if int(w[_HDR + i * _SLOT + _S_BLAMED]) > 0},
         )
+
+
+def _gone(pid: int, tid: int) -> tuple[ReleaseReason | None, str]:
+    """Whether process ``pid`` (thread ``tid``, 0: not known) has ended: (reason, detail) or (None, "")."""
+    if pid <= 0:
+        return None, ""
+    state = _task_state(pid, pid)
+    if state is None or state in "ZXx":
+        return ReleaseReason.PROCESS_ENDED, f"pid {pid}"
+    if tid > 0 and tid != pid:
+        state = _task_state(pid, tid)
+        if state is None or state in "ZXx":
+            return ReleaseReason.THREAD_ENDED, f"pid {pid} thread {tid}"
+    return None, ""
+
+
+def _task_state(pid: int, tid: int) -> str | None:
+    """The scheduler state letter of a task (``/proc``), None when it does not exist."""
+    try:
+        with open(f"/proc/{pid}/task/{tid}/stat", "rb") as f:
+            text = f.read()
+    except FileNotFoundError:
+        return None
+    except OSError:  # no /proc here: only the process can be asked about
+        if tid != pid:
+            return "?"
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return None
+        except PermissionError:
+            pass
+        return "?"
+    # "pid (comm) S ...": comm may hold spaces and parentheses, the state follows the last ')'
+    return text[text.rfind(b")") + 2: text.rfind(b")") + 3].decode("ascii", "replace") or "?"
 
 
 def _attach_governor(path: str, budget_ns: int, stall_limit_s: float) -> ClockGovernor:
@@ -485,6 +661,10 @@ class Participant:
     reports every frame it takes with :meth:`took` and :meth:`not_reading` when it stops (a consumer
     registered with value ``UNBOUNDED_NS`` owes nothing until its first frame). On a clock that is
     not governed the calls change nothing.
+
+    The thread that calls :meth:`at`, :meth:`took` or :meth:`sent` is the one that does the work:
+    when it ends (or the process does) while the clock waits for this participant, the clock stops
+    waiting for it (see :class:`ClockGovernor`).
     """
 
     def __init__(self, governor: ClockGovernor | None, name: str, progress_ns: int, *, reuse: bool = False,
@@ -498,6 +678,7 @@ class Participant:
         self._linked = False
         self._taken_stamp = value
         self._taken_count = ALL_FRAMES
+        self._tid = 0
         self.progress_ns = progress_ns
 
     @property
@@ -509,11 +690,20 @@ class Participant:
         """How far the governed clock may run past this participant's progress (0: not governed)."""
         return self._gov.budget_ns if self._gov is not None else 0
 
+    def _worker(self, gov: ClockGovernor) -> None:
+        tid = threading.get_native_id()
+        if tid != self._tid:
+            self._tid = tid
+            gov.set_thread(self._slot, tid)
+
     def at(self, progress_ns: int) -> None:
         if progress_ns != self.progress_ns:
             self.progress_ns = progress_ns
-            if self._gov is not None:
-                self._gov.publish(self._slot, progress_ns)
+            gov = self._gov
+            if gov is not None:
+                if progress_ns != UNBOUNDED_NS:
+                    self._worker(gov)
+                gov.publish(self._slot, progress_ns)
 
     def idle(self) -> None:
         self.at(UNBOUNDED_NS)
@@ -527,6 +717,7 @@ class Participant:
         """A consumer took a frame stamped ``stamp_ns`` (frames arrive in stamp order)."""
         if self._gov is None:
             return
+        self._worker(self._gov)
         if stamp_ns == self._taken_stamp:
             self._taken_count += 1
         else:
@@ -536,9 +727,19 @@ class Participant:
         self._gov.took(self._slot, stamp_ns, self._taken_count)
 
     def not_reading(self) -> None:
-        """A consumer stopped reading (unplugged, closed): it owes nothing until its next :meth:`took`."""
+        """A consumer stopped reading (unplugged, closed): it owes nothing until its next :meth:`took`
+        (a release record says so when it was reading)."""
+        was_reading = self._taken_stamp != UNBOUNDED_NS
         self._taken_stamp = UNBOUNDED_NS
         self.set_value(UNBOUNDED_NS)
+        if was_reading and self._gov is not None:
+            self._gov.note_release(self._slot, ReleaseReason.READER_CLOSED)
+
+    def reader_closed(self, detail: str) -> None:
+        """What this participant holds the clock for is no longer owed: its reader closed its end
+        (``detail``: which, e.g. a port); recorded as a release."""
+        if self._gov is not None:
+            self._gov.note_release(self._slot, ReleaseReason.READER_CLOSED, detail)
 
     def feeds(self, consumer: str) -> None:
         """What this participant sends is read by participant ``consumer`` (linked once it registers)."""
@@ -564,6 +765,7 @@ class Participant:
         """A frame stamped ``stamp_ns`` goes out now; call it before the frame can reach the consumer."""
         if self._gov is not None:
             self._link()
+            self._worker(self._gov)
             self._gov.sent(self._slot, stamp_ns)
 
     def peer_value(self, name: str) -> int | None:

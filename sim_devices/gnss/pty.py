@@ -14,10 +14,12 @@ the owning device's thread does all I/O (see :class:`sim_devices.gnss.receiver.S
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import errno
 import fcntl
 import logging
 import os
+import struct
 import sys
 import termios
 import tty
@@ -47,6 +49,7 @@ class PtyPort:
         self.bytes_written = 0
         self.bytes_dropped = 0
         self.bytes_read = 0
+        self._watch: _OpenWatch | None = None
 
     @property
     def connected(self) -> bool:
@@ -84,6 +87,7 @@ class PtyPort:
             os.close(slave)
             raise DeviceError(f"sim port {self.name}: cannot link {self.path}: {exc}") from exc
         self._master, self._slave, self.device_path = master, slave, device
+        self._watch = _OpenWatch.of(device)
         log.debug("sim port %s plugged: %s -> %s", self.name, self.path, device)
 
     def unplug(self) -> None:
@@ -97,6 +101,16 @@ class PtyPort:
         if self._master is not None:
             log.debug("sim port %s unplugged (%s)", self.name, self.device_path)
         self._master = self._slave = None
+        if self._watch is not None:
+            self._watch.close()
+            self._watch = None
+
+    def readers(self) -> int | None:
+        """How many times the other side (a driver, any process) has the port open now: 0 when nobody
+        does (never opened, or closed again), None when it cannot be told (not on Linux)."""
+        if self._master is None:
+            return 0
+        return self._watch.count() if self._watch is not None else None
 
     def write(self, data: bytes) -> int:
         """Write without blocking; bytes that do not fit (nobody reading) are dropped and counted."""
@@ -153,3 +167,63 @@ class PtyPort:
             if name.startswith("B") and name[1:].isdigit() and getattr(termios, name) == speed:
                 return int(name[1:])
         return None
+
+
+_IN_OPEN = 0x20
+_IN_CLOSE = 0x08 | 0x10  # IN_CLOSE_WRITE | IN_CLOSE_NOWRITE
+_IN_Q_OVERFLOW = 0x4000
+_EVENT = struct.Struct("iIII")
+
+
+class _OpenWatch:
+    """Opens minus closes of a device node by anyone since the watch started (Linux inotify): a
+    close event comes with the last close of an open file description, also when its process dies."""
+
+    def __init__(self, fd: int) -> None:
+        self._fd = fd
+        self._open = 0
+        self._lost = False
+
+    @classmethod
+    def of(cls, path: str) -> _OpenWatch | None:
+        """A watch of ``path``, None where inotify is not available."""
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            init, add = libc.inotify_init1, libc.inotify_add_watch
+        except (OSError, AttributeError):
+            return None
+        fd = int(init(os.O_NONBLOCK | os.O_CLOEXEC))
+        if fd < 0:
+            log.info("sim port %s: no inotify (%s): cannot tell whether a reader has it open",
+                     path, os.strerror(ctypes.get_errno()))
+            return None
+        if int(add(fd, path.encode(), _IN_OPEN | _IN_CLOSE)) < 0:
+            log.info("sim port %s: cannot watch it (%s)", path, os.strerror(ctypes.get_errno()))
+            os.close(fd)
+            return None
+        return cls(fd)
+
+    def count(self) -> int | None:
+        """Open file descriptions of the node now (None: events were lost, it cannot be told)."""
+        while self._fd >= 0:
+            try:
+                data = os.read(self._fd, 4096)
+            except (BlockingIOError, OSError):
+                break
+            i = 0
+            while i + _EVENT.size <= len(data):
+                _wd, mask, _cookie, length = _EVENT.unpack_from(data, i)
+                i += _EVENT.size + length
+                if mask & _IN_Q_OVERFLOW:
+                    self._lost = True
+                elif mask & _IN_OPEN:
+                    self._open += 1
+                elif mask & _IN_CLOSE:
+                    self._open -= 1
+        return None if self._lost else max(0, self._open)
+
+    def close(self) -> None:
+        if self._fd >= 0:
+            with contextlib.suppress(OSError):
+                os.close(self._fd)
+            self._fd = -1

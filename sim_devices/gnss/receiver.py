@@ -797,12 +797,21 @@ class SimReceiver(abc.ABC):
                         st.written.popleft()
         return nxt
 
-    def _unread_since(self) -> int | None:
-        """Clock time of the oldest write that a reader of one of the ports has not read yet."""
+    def _unread_since(self, closed: list[str]) -> int | None:
+        """Clock time of the oldest write that a reader of one of the ports has not read yet; the ports
+        whose reader closed its end (or that were unplugged) while it owed a write are added to
+        ``closed`` (nothing is owed while nobody has a port open)."""
         oldest: int | None = None
         for st in self._ports.values():
             pty = st.pty
             if pty is None or not st.written:
+                continue
+            if pty.readers() == 0:
+                if st.read_seen:
+                    closed.append(f"port {st.name}" + ("" if pty.connected else " unplugged"))
+                st.written.clear()
+                st.read_seen = False
+                st.consumed = pty.bytes_written - pty.unread()
                 continue
             consumed = pty.bytes_written - pty.unread()
             if consumed > st.consumed:
@@ -841,7 +850,10 @@ class SimReceiver(abc.ABC):
                     # at a write until it is read (not the budget past them): the readers' receive stamps
                     # of GNSS data are the session's host → GPS time base, and a clock that ran the budget
                     # past every late wake-up would put all of them the budget late
-                    unread = self._unread_since()
+                    closed: list[str] = []
+                    unread = self._unread_since(closed)
+                    for port in closed:
+                        me.reader_closed(port)
                     me.at(min(UNBOUNDED_NS if wake is None else wake - hold_back,
                               UNBOUNDED_NS if unread is None else unread - hold_back))
                     if unread is not None:
