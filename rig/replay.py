@@ -742,8 +742,8 @@ class Replayer:
     wake-up) and later on a busy host, so the wait for each due time is in two steps: the clock's sleep
     until ``spin_s`` before it, then a short spin on the clock that releases the interpreter lock between
     checks (:func:`_let_threads_run`), so that other threads of the process are not held up by it. The spin is bounded:
-    when the clock has not reached the due time after ``2 * spin_s`` of wall time (a clock that is not
-    running at wall speed: paused, governed or a test's) the clock's own sleep finishes the wait.
+    when two readings of the clock are equal (a paused governed clock, a clock too coarse to spin on, a
+    test's) the clock's own sleep finishes the wait.
     ``spin_s=0`` waits with the clock's sleep alone. Frames sharing a due time go out back to back after
     one wait. The python-can messages are built ahead (``build_ahead`` at a time, while there is time to
     spare), so nothing is encoded at a due time. The cyclic garbage collector is held off during the
@@ -889,12 +889,13 @@ class Replayer:
             return clock.sleep_until_ns(due_ns, stop)
         if due_ns - clock.now_ns() > spin and not clock.sleep_until_ns(due_ns - spin, stop):
             return False
-        give_up = time.monotonic_ns() + 2 * spin
-        while clock.now_ns() < due_ns:
+        last = -1
+        while (now := clock.now_ns()) < due_ns:
             if stop.is_set():
                 return False
-            if time.monotonic_ns() > give_up:
+            if now == last:  # the clock stands still (paused, or too coarse to spin on): let it wait
                 return clock.sleep_until_ns(due_ns, stop)
+            last = now
             _let_threads_run()
         return not stop.is_set()
 

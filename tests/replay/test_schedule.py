@@ -245,8 +245,8 @@ def test_a_sleep_that_ends_past_the_due_time_sends_at_once() -> None:
 
 
 def test_the_spin_gives_up_on_a_clock_that_does_not_advance() -> None:
-    """A clock that stands still between sleeps (paused, governed, a test's): the spin ends after twice its
-    length of wall time and the clock's sleep finishes the wait, so the replay neither hangs nor sends early."""
+    """A clock that stands still between sleeps (paused, governed, a test's): the spin ends at the first
+    repeated reading and the clock's sleep finishes the wait, so the replay neither hangs nor sends early."""
     plan = periodic(3)
     clock = FakeClock(oversleep_ns=(300_000,))
     bus, stats = run(plan, clock, lead_s=0.01, spin_s=0.001)
