@@ -1,11 +1,15 @@
 """Post-processed kinematic (PPK) solutions of a recorded session with RTKLIB (``rig ppk``).
 
 Per rover: the session's raw streams are exported (:func:`rig.export.export_raw_gnss`), the rover's
-NovAtel stream (RANGECMPB) and the relayed base corrections (RTCM3 MSM + 1005/1006) are turned into
-RINEX observations by Debian RTKLIB's ``convbin``, a RINEX 3 GPS navigation file is written from the
-rover's decoded GPSEPHEM logs (RTKLIB 2.4.3 reads GPS ephemerides from RAWEPHEMB only; see
-docs/decisions/0004-ppk-with-debian-rtklib.md), and ``rnx2rtkp`` solves in kinematic mode, forward
-and backward combined, L1+L2, against the base position the corrections carry (RTCM 1005/1006).
+NovAtel stream (RANGECMPB, GPS and GLONASS records) and the relayed base corrections (RTCM3 MSM +
+1005/1006) are turned into RINEX observations by Debian RTKLIB's ``convbin``, a RINEX 3 navigation
+file is written from the rover's decoded GPSEPHEM and GLOEPHEMERIS logs (RTKLIB 2.4.3 reads GPS
+ephemerides from RAWEPHEMB only; see docs/decisions/0004-ppk-with-debian-rtklib.md), and ``rnx2rtkp``
+solves in kinematic mode, forward and backward combined, L1+L2, against the base position the
+corrections carry (RTCM 1005/1006), with GPS and GLONASS (:data:`SYSTEMS`). GLONASS ambiguities are
+fixed too (``pos2-gloarmode = on``): that assumes no inter-channel (FDMA) biases between the rover and
+the base, which holds for the simulator and for two receivers of one make; GLONASS ephemerides are
+optional (without GLOEPHEMERIS logs the solution is GPS-only, as before).
 
 The solutions of every rover go into one side file next to the session, ``<base>.ppk.parquet``
 (:func:`ppk_file_path`, :data:`PPK_COLUMNS`), which :mod:`rig.sessiondata` reads. RTKLIB runs as
@@ -29,11 +33,12 @@ import numpy as np
 import numpy.typing as npt
 
 from drivers.novatel import FrameReader
-from drivers.novatel.rawobs import GpsEphem, decode_gpsephem
+from drivers.novatel.rawobs import GloEphemeris, GpsEphem, decode_gloephemeris, decode_gpsephem
 from vsccore.errors import AnalysisError, DecodeError, RigError, SessionFileError
 
 __all__ = [
     "PPK_COLUMNS",
+    "SYSTEMS",
     "PpkQuality",
     "PpkRover",
     "PpkRun",
@@ -50,6 +55,9 @@ TOOLS = ("convbin", "rnx2rtkp")
 DEFAULT_TIMEOUT_S = 600.0
 """Per RTKLIB call (rnx2rtkp on an hour at 20 Hz takes minutes, not tens of minutes)."""
 ELEVATION_MASK_DEG = 10.0
+SYSTEMS = ("G", "R")
+"""Satellite systems rnx2rtkp solves with by default: GPS and GLONASS (RINEX letters)."""
+_NAVSYS = {"G": 1, "S": 2, "R": 4, "E": 8, "J": 16, "C": 32}  # RTKLIB's pos1-navsys bits
 PPK_COLUMNS = ("rover", "gps_time_ns", "time_ns", "lat_deg", "lon_deg", "height_m", "q", "ns",
                "sdn_m", "sde_m", "sdu_m", "ratio")
 """Columns of the side file: GPS time (ns since the GPS epoch), UTC (ns since the Unix epoch, with the
@@ -89,6 +97,8 @@ class PpkRover:
     observation_epochs: int
     """RANGECMP logs in the rover's stream."""
     satellites_median: float
+    glonass_ephemerides: int = 0
+    """GLOEPHEMERIS sets written to the navigation file (0: GPS-only solution)."""
 
     @property
     def fix_ratio(self) -> float:
@@ -150,10 +160,12 @@ class _RoverStream:
     rangecmp: int
     ephemerides: tuple[GpsEphem, ...]
     first_gps_ns: int | None
+    glonass: tuple[GloEphemeris, ...] = ()
 
 
 def _scan_rover(path: Path, rover: str) -> _RoverStream:
     ephs: dict[tuple[int, int, float], GpsEphem] = {}
+    glo: dict[tuple[int, int, int], GloEphemeris] = {}
     n = 0
     first: int | None = None
     with open(path, "rb") as f:
@@ -171,20 +183,32 @@ def _scan_rover(path: Path, rover: str) -> _RoverStream:
                 except DecodeError as exc:
                     raise AnalysisError(f"{path}: rover {rover}: undecodable GPSEPHEM log: {exc}") from exc
                 ephs[(e.prn, e.iode1, e.toe_s)] = e
-    return _RoverStream(n, tuple(ephs.values()), first)
+            elif name == "GLOEPHEMERIS":
+                try:
+                    g = decode_gloephemeris(fr.log.body)  # type: ignore[arg-type]
+                except DecodeError as exc:
+                    raise AnalysisError(f"{path}: rover {rover}: undecodable GLOEPHEMERIS log: {exc}") from exc
+                glo[(g.slot, g.ephem_week, g.ephem_time_ms)] = g
+    return _RoverStream(n, tuple(ephs.values()), first, tuple(glo.values()))
 
 
 def _d19(x: float) -> str:
     return f"{x:19.12E}".replace("E", "D")
 
 
-def write_rinex_nav(ephemerides: Iterable[GpsEphem], path: Path) -> int:
-    """Write GPS broadcast ephemerides (decoded GPSEPHEM) as a RINEX 3.04 navigation file; returns how many.
+def write_rinex_nav(ephemerides: Iterable[GpsEphem], path: Path, glonass: Iterable[GloEphemeris] = ()) -> int:
+    """Write broadcast ephemerides (decoded GPSEPHEM, and GLOEPHEMERIS) as a RINEX 3.04 navigation file (mixed when
+    there are GLONASS sets); returns how many.
+
+    A GLONASS record is stamped in UTC (tb − the leap seconds GLOEPHEMERIS's GPS-GLONASS offset implies) with
+    −τn, +γn and the frame time in seconds of the UTC week; position, velocity and lunisolar acceleration in km.
 
     Raises:
-        AnalysisError: an ephemeris with a non-finite parameter (named by PRN and IODE).
+        AnalysisError: an ephemeris with a non-finite parameter (named by PRN and IODE, or slot and tb).
     """
-    lines = [f"{'3.04':>9}{'':11}{'N: GNSS NAV DATA':<20}{'G: GPS':<20}RINEX VERSION / TYPE",
+    glo = sorted(glonass, key=lambda g: (g.slot, g.ephem_week, g.ephem_time_ms))
+    kind = "M: MIXED" if glo else "G: GPS"
+    lines = [f"{'3.04':>9}{'':11}{'N: GNSS NAV DATA':<20}{kind:<20}RINEX VERSION / TYPE",
              f"{'vsc-rig ppk':<20}{'':<20}{'':<20}PGM / RUN BY / DATE",
              f"{'':60}END OF HEADER"]
     n = 0
@@ -204,6 +228,22 @@ def write_rinex_nav(ephemerides: Iterable[GpsEphem], path: Path) -> int:
             raise AnalysisError(f"GPSEPHEM PRN {e.prn} IODE {e.iode1}: non-finite orbit parameter")
         lines.append(f"G{e.prn:02d} {toc:%Y %m %d %H %M %S}{_d19(e.af0_s)}{_d19(e.af1_s_s)}{_d19(e.af2_s_s2)}")
         lines.extend("    " + "".join(_d19(float(v)) for v in r) for r in rows)
+        n += 1
+    for g in glo:
+        leap = 3 * 3600 - g.time_offset_s
+        utc_s = g.ephem_week * 604800 + g.ephem_time_ms // 1000 - leap
+        toc = _GPS_EPOCH + dt.timedelta(seconds=utc_s)
+        # frame start (tk, seconds of the GLONASS day) as seconds of the UTC week
+        glo_day_start = utc_s + 3 * 3600 - (utc_s + 3 * 3600) % 86400
+        frame = (glo_day_start + g.tk_s - 3 * 3600) % 604800
+        grows = [(g.pos_x_m / 1e3, g.vel_x_mps / 1e3, g.ls_acc_x_mps2 / 1e3, 0.0 if g.healthy else 1.0),
+                 (g.pos_y_m / 1e3, g.vel_y_mps / 1e3, g.ls_acc_y_mps2 / 1e3, float(g.fcn)),
+                 (g.pos_z_m / 1e3, g.vel_z_mps / 1e3, g.ls_acc_z_mps2 / 1e3, float(g.age_days))]
+        head = (-g.tau_n_s, g.gamma_n, float(frame))
+        if not all(math.isfinite(v) for v in (*head, *(v for r in grows for v in r))):
+            raise AnalysisError(f"GLOEPHEMERIS slot {g.slot} tb {g.ephem_time_ms / 1000:g} s: non-finite parameter")
+        lines.append(f"R{g.slot:02d} {toc:%Y %m %d %H %M %S}" + "".join(_d19(v) for v in head))
+        lines.extend("    " + "".join(_d19(v) for v in r) for r in grows)
         n += 1
     path.write_text("\n".join(lines) + "\n")
     return n
@@ -299,18 +339,21 @@ def run_ppk(
     timeout_s: float = DEFAULT_TIMEOUT_S,
     elevation_mask_deg: float = ELEVATION_MASK_DEG,
     base: Path | str | None = None,
+    systems: Sequence[str] = SYSTEMS,
 ) -> PpkRun:
     """Run RTKLIB on each rover of a recorded session and write the side file (see the module docstring).
 
     ``work_dir`` keeps the intermediate files (exported streams, RINEX, ``.pos``); default: a temporary
     directory removed afterwards. ``base``: the base's own observations (RINEX 3 obs, or an RTCM3 file with
     1005/1006) instead of the recorded relayed corrections, for a dropout of the link that fed the relay
-    itself (the base's internal log, or a reference station's file).
+    itself (the base's internal log, or a reference station's file). ``systems``: RINEX letters of the satellite
+    systems to solve with (default GPS and GLONASS; ``("G",)`` for GPS only).
 
     Raises:
         RtklibMissingError: ``convbin`` / ``rnx2rtkp`` not on PATH.
         AnalysisError: a rover without RANGECMP or GPSEPHEM logs (the message says what to log), no base
-            position in the corrections, an unknown rover, or an RTKLIB call that failed or timed out.
+            position in the corrections, an unknown rover or satellite system, or an RTKLIB call that failed or
+            timed out.
         SessionFileError: the session cannot be read or the side file cannot be written.
     """
     import pyarrow as pa
@@ -318,6 +361,10 @@ def run_ppk(
 
     from rig.export import ExportKind, export_raw_gnss
 
+    bad = [s for s in systems if s not in _NAVSYS]
+    if bad or not systems:
+        raise AnalysisError(f"unknown satellite system {', '.join(bad) or '(none given)'}: use the RINEX letters "
+                            f"{', '.join(_NAVSYS)}")
     tools = _tools()
     session = Path(session_path)
     known, leap = _rovers_of(session)
@@ -366,18 +413,26 @@ def run_ppk(
         if base_xyz is None:
             raise AnalysisError(f"{corrections[0]}: no base position (RTCM 1005/1006, or a RINEX APPROX POSITION XYZ): "
                                 "log RTCM1006 on the base")
+        conf = wd / "rnx2rtkp.conf"
+        # -k resets the output options to the options file's defaults: keep rnx2rtkp's own (GPS week + TOW)
+        conf.write_text(f"pos1-navsys       ={sum(_NAVSYS[s] for s in set(systems))}\n"
+                        "pos2-gloarmode    =on\n"
+                        "out-timeform      =tow\n"
+                        "out-timendec      =3\n")
         tables = []
         results = []
         for r in chosen:
             st = streams[r]
             assert st is not None
             nav = wd / f"{r}.nav"
-            write_rinex_nav(st.ephemerides, nav)
+            glo = st.glonass if "R" in systems else ()
+            write_rinex_nav(st.ephemerides, nav, glo)
             obs = wd / f"{r}.obs"
             _run([tools["convbin"], "-r", "nov", "-v", "3.04", "-o", str(obs), str(wd / "raw" / f"{r}.gps")],
                  f"rover {r} to RINEX", timeout_s, wd)
             pos = wd / f"{r}.pos"
-            _run([tools["rnx2rtkp"], "-p", "2", "-c", "-f", "2", "-m", f"{elevation_mask_deg:g}",
+            _run([tools["rnx2rtkp"], "-k", str(conf), "-p", "2", "-c", "-f", "2", "-m", f"{elevation_mask_deg:g}",
+                  "-sys", ",".join(systems),
                   "-r", *(f"{v:.4f}" for v in base_xyz), "-o", str(pos), str(obs), str(base_obs), str(nav)],
                  f"rover {r} PPK", timeout_s, wd)
             rows = _read_pos(pos)
@@ -393,7 +448,7 @@ def run_ppk(
                 "sdn_m": rows[:, 7], "sde_m": rows[:, 8], "sdu_m": rows[:, 9], "ratio": rows[:, 14],
             }))
             results.append(PpkRover(r, len(rows), int(np.count_nonzero(q == PpkQuality.FIX)), st.rangecmp,
-                                    float(np.median(rows[:, 6])) if len(rows) else 0.0))
+                                    float(np.median(rows[:, 6])) if len(rows) else 0.0, len(glo)))
         table = pa.concat_tables(tables)
         try:
             target.parent.mkdir(parents=True, exist_ok=True)

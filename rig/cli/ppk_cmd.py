@@ -1,6 +1,7 @@
 """``rig ppk``: post-processed kinematic solutions of a recorded session with RTKLIB (:mod:`rig.ppk`).
 
     rig ppk sessions/2026-05-04_track [--rover rover_a --rover rover_b] [--out FILE] [--keep DIR] [--base FILE]
+            [--systems G,R]
 
 Writes ``<session>.ppk.parquet`` (read by ``rig validate`` and the other analyses) and prints each rover's
 fix ratio. Exit status 0 on success, 2 on an error (missing logs, RTKLIB not installed, a failed RTKLIB run).
@@ -27,15 +28,18 @@ def ppk(
     base: Annotated[Path | None, typer.Option("--base", help="The base's own observations (RINEX 3 obs, or RTCM3 "
                                               "with 1005/1006) instead of the recorded relayed corrections.")] = None,
     mask_deg: Annotated[float, typer.Option("--mask-deg", help="Elevation mask (deg).", min=0.0, max=60.0)] = 10.0,
+    systems: Annotated[str, typer.Option("--systems", help="Satellite systems to solve with, RINEX letters "
+                                         "(G GPS, R GLONASS).")] = "G,R",
 ) -> None:
     """Post-process the rovers' raw observations against the base corrections with RTKLIB (kinematic, combined)."""
     from rig.ppk import run_ppk
 
     res = run_ppk(session, rovers=rover, out=out, work_dir=keep, timeout_s=timeout_s, elevation_mask_deg=mask_deg,
-                  base=base)
+                  base=base, systems=tuple(x.strip().upper() for x in systems.split(",") if x.strip()))
     for w in res.warnings:
         typer.echo(f"warning: {w}", err=True)
     for r in res.rovers:
         typer.echo(f"{r.rover}: fix ratio {r.fix_ratio:.1%} ({r.fixed} of {r.observation_epochs} epochs fixed, "
-                   f"{r.epochs} solved, median {r.satellites_median:g} satellites)")
+                   f"{r.epochs} solved, median {r.satellites_median:g} satellites, "
+                   f"{r.glonass_ephemerides} GLONASS ephemerides)")
     typer.echo(f"wrote {res.out}")

@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,8 +14,9 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
+from drivers.novatel.rawobs import GloEphemeris
 from rig.cli.main import app
-from rig.ppk import PPK_COLUMNS, PpkQuality, ppk_file_path, read_ppk_file, run_ppk
+from rig.ppk import PPK_COLUMNS, PpkQuality, ppk_file_path, read_ppk_file, run_ppk, write_rinex_nav
 from vsccore.errors import AnalysisError
 
 pytestmark = pytest.mark.skipif(shutil.which("rnx2rtkp") is None or shutil.which("convbin") is None,
@@ -22,7 +24,7 @@ pytestmark = pytest.mark.skipif(shutil.which("rnx2rtkp") is None or shutil.which
 
 A_LOGS = [{"name": "BESTPOSB", "period_s": 0.05}, {"name": "BESTVELB", "period_s": 0.05},
           {"name": "TIMEB", "period_s": 1.0}, {"name": "RANGECMPB", "period_s": 0.2},
-          {"name": "GPSEPHEMB", "trigger": "onchanged"}]
+          {"name": "GPSEPHEMB", "trigger": "onchanged"}, {"name": "GLOEPHEMERISB", "trigger": "onchanged"}]
 B_LOGS = [{"name": "BESTPOSB", "period_s": 0.05}, {"name": "BESTVELB", "period_s": 0.05},
           {"name": "TIMEB", "period_s": 1.0}]
 """Rover B logs no raw observations and no ephemerides."""
@@ -136,3 +138,78 @@ def test_ppk_with_the_bases_own_observations(session: Path, tmp_path: Path) -> N
     (tmp_path / "nopos.obs").write_text("\n".join(ln for ln in text.splitlines() if "APPROX POSITION" not in ln))
     with pytest.raises(AnalysisError, match=r"nopos.obs: no base position"):
         run_ppk(session, rovers=["rover_a"], base=tmp_path / "nopos.obs", out=tmp_path / "x.parquet")
+
+
+def _rinex_obs_satellites(path: Path) -> set[str]:
+    """Satellites of a RINEX 3 observation file (the first field of each observation line)."""
+    sats: set[str] = set()
+    body = False
+    with open(path) as f:
+        for line in f:
+            if body and line[:1] in "GRECJS" and line[1:3].strip().isdigit():
+                sats.add(line[:3])
+            body = body or "END OF HEADER" in line
+    return sats
+
+
+def test_ppk_solves_with_glonass_as_well(session: Path, tmp_path: Path) -> None:
+    """GLOEPHEMERISB logged: the RINEX obs of rover and base carry GLONASS, the navigation file its ephemerides,
+    and RTKLIB solves with more satellites than GPS alone, fixing at least as many epochs."""
+    both = run_ppk(session, rovers=["rover_a"], out=tmp_path / "gr.parquet", work_dir=tmp_path / "gr")
+    gps = run_ppk(session, rovers=["rover_a"], out=tmp_path / "g.parquet", work_dir=tmp_path / "g", systems=("G",))
+    wd = tmp_path / "gr"
+    rover_r = {s for s in _rinex_obs_satellites(wd / "rover_a.obs") if s.startswith("R")}
+    base_r = {s for s in _rinex_obs_satellites(wd / "base.obs") if s.startswith("R")}
+    nav_r = {ln[:3] for ln in (wd / "rover_a.nav").read_text().splitlines() if ln.startswith("R")}
+    assert len(rover_r) >= 5 and rover_r == base_r and nav_r == rover_r, (rover_r, base_r, nav_r)
+    assert "M: MIXED" in (wd / "rover_a.nav").read_text().splitlines()[0]
+    (rb,), (rg,) = both.rovers, gps.rovers
+    print(f"\n  GPS+GLONASS: median {rb.satellites_median:g} satellites, {rb.fixed}/{rb.observation_epochs} fixed; "
+          f"GPS only: median {rg.satellites_median:g}, {rg.fixed}/{rg.observation_epochs} fixed")
+    assert rb.glonass_ephemerides == len(nav_r) and rg.glonass_ephemerides == 0
+    assert rb.satellites_median >= rg.satellites_median + len(rover_r) - 1
+    assert rb.fixed >= rg.fixed and rb.epochs == rg.epochs
+    sb, sg = read_ppk_file(both.out)["rover_a"], read_ppk_file(gps.out)["rover_a"]
+    fixed = sb.fixed & sg.fixed
+    assert fixed.sum() >= 0.9 * len(fixed)
+    # both fixed solutions agree within the centimetres of their uncertainties (same ambiguities, more geometry)
+    assert np.max(np.abs(sb.height_m[fixed] - sg.height_m[fixed])) < 0.05
+    assert np.median(sb.sdu_m[fixed]) < np.median(sg.sdu_m[fixed])
+
+
+def _glo(**kw: float) -> GloEphemeris:
+    eph = GloEphemeris(
+        sloto=14 + 37, freqo=0, sat_type=1, false_iod=0, ephem_week=2400, ephem_time_ms=(345600 - 882) * 1000,
+        time_offset_s=10782, nt_day=1, reserved1=0, reserved2=0, issue=11, health=0, pos_x_m=-23_114_356.25,
+        pos_y_m=3_366_334.5, pos_z_m=3_757_992.75, vel_x_mps=-101.5, vel_y_mps=1686.25, vel_z_mps=-3402.75,
+        ls_acc_x_mps2=1.862645149230957e-06, ls_acc_y_mps2=-9.313225746154785e-07, ls_acc_z_mps2=0.0,
+        tau_n_s=-6.5e-05, delta_tau_n_s=0.0, gamma_n=9.0e-13, tk_s=9000, p=0, ft=0, age_days=2, flags=5)
+    return replace(eph, **kw)
+
+
+def test_rinex_nav_glonass_record(tmp_path: Path) -> None:
+    """RINEX 3.04 GLONASS record: UTC epoch (tb − 18 s), −τn, +γn, frame time in s of the UTC week, km, FCN."""
+    nav = tmp_path / "m.nav"
+    assert write_rinex_nav([], nav, [_glo()]) == 1
+    lines = nav.read_text().splitlines()
+    assert lines[0][40:60].strip() == "M: MIXED"
+    rec = lines[lines.index(f"{'':60}END OF HEADER") + 1:]
+    assert len(rec) == 4
+    # tb = GPS week 2400, 345600 − 882 s → 2026-01-07 23:45:18 GPS = 23:45:00 UTC
+    assert rec[0].startswith("R14 2026 01 07 23 45 00")
+
+    def values(line: str, first: int) -> list[float]:
+        n = 3 if first > 4 else 4
+        return [float(line[first + 19 * i: first + 19 * (i + 1)].replace("D", "E")) for i in range(n)]
+
+    assert values(rec[0], 23) == pytest.approx([6.5e-05, 9.0e-13, (345600 - 882 - 18 - 900) % 604800])
+    assert values(rec[1], 4) == pytest.approx([-23_114.35625, -0.1015, 1.862645149230957e-09, 0.0], rel=1e-11)
+    assert values(rec[2], 4) == pytest.approx([3_366.3345, 1.68625, -9.313225746154785e-10, -7.0], rel=1e-11)
+    assert values(rec[3], 4) == pytest.approx([3_757.99275, -3.40275, 0.0, 2.0], rel=1e-11)
+    with pytest.raises(AnalysisError, match="GLOEPHEMERIS slot 14 tb 344718 s: non-finite"):
+        write_rinex_nav([], nav, [_glo(tau_n_s=float("nan"))])
+
+
+def test_ppk_unknown_system_is_refused(session: Path) -> None:
+    with pytest.raises(AnalysisError, match="unknown satellite system X"):
+        run_ppk(session, rovers=["rover_a"], systems=("G", "X"))
