@@ -129,6 +129,7 @@ class Constellation:
         # GLONASS clock rates γ (s/s): a fixed, deterministic ±2e-12 spread, from the offset at the GPS week's start
         self._gamma = np.array([((5 * i) % 11 - 5) * 4.0e-13 if s.system is GnssSystem.GLONASS else 0.0
                                 for i, s in enumerate(sats)])
+        self._glo_at: dict[int, tuple[FloatArray, FloatArray]] = {}  # whole GPS second -> (states, acc)
         self.glonass_truth = _shared_truth(tuple(sats[i].prn for i in self._glo), self._glonass_kepler)
 
     def index(self, sat: Satellite) -> int:
@@ -194,8 +195,14 @@ class Constellation:
         if sat.system is not GnssSystem.GLONASS or sat not in self._index:
             raise ValueError(f"{sat.system.value} satellite {sat.prn} is not a GLONASS satellite of the constellation")
         row = int(np.flatnonzero(self._glo == self._index[sat])[0])
-        states = self.glonass_truth.states_ns(t_gps_s * NS_PER_S, np.zeros(len(self._glo)))
-        return states[row].copy(), self.glonass_truth.acc(float(t_gps_s))[row]
+        cached = self._glo_at.get(t_gps_s)
+        if cached is None:
+            cached = (self.glonass_truth.states_ns(t_gps_s * NS_PER_S, np.zeros(len(self._glo))),
+                      self.glonass_truth.acc(float(t_gps_s)))
+            if len(self._glo_at) >= 4:
+                self._glo_at.pop(next(iter(self._glo_at)))
+            self._glo_at[t_gps_s] = cached
+        return cached[0][row].copy(), cached[1][row].copy()
 
     def phase_at_day(self, day: int) -> tuple[FloatArray, float]:
         """(n·T mod 2π per satellite, ω_E·T mod 2π) at T = ``day`` × 86400 s, accurate to ~1e-16 rad.

@@ -31,6 +31,7 @@ from sim_devices.gnss.commands import LogFormat, SimpleCommand
 from sim_devices.gnss.constellation import Constellation, GnssSystem
 from sim_devices.gnss.ephemeris import glonass_ephemeris, gps_ephemeris
 from sim_devices.gnss.error_model import GnssErrorParams, RtkParams, RtkState, RtkStateMachine, carries_gps_epoch
+from sim_devices.gnss.glonass import GlonassTruth
 from sim_devices.gnss.observations import ObservationGenerator
 from sim_devices.gnss.rawlogs import rangecmp_ascii, rangecmp_binary
 from sim_devices.gnss.receiver import SimReceiver
@@ -129,7 +130,7 @@ class SimRover(SimReceiver):
         self._mark_time_ns: int | None = None
         self._last_mark_accepted: int | None = None
         self._ephemeris_sent: dict[int, int] = {}  # PRN -> IODE last sent ONCHANGED
-        self._glo_ephemeris_sent: dict[int, int] = {}  # slot -> tb (ms of the GPS week) last sent ONCHANGED
+        self._glo_ephemeris_sent: dict[int, int] = {}  # slot -> tb (GPS s) last sent ONCHANGED
 
     @property
     def correction_port_path(self) -> str:
@@ -239,12 +240,12 @@ class SimRover(SimReceiver):
         for geo in self.observations.geometry(self.antenna_state(t_gps_ns), t_gps_ns):
             if geo.sat.system is not GnssSystem.GLONASS:
                 continue
-            eph = glonass_ephemeris(self.constellation, geo.sat, t_gps_ns)
-            if self.emitting_on_change:
-                if self._glo_ephemeris_sent.get(eph.slot) == eph.ephem_time_ms:
+            if self.emitting_on_change:  # a new set every 30 min: tell before computing it
+                tb = GlonassTruth.tb_s(t_gps_ns / NS_PER_S)
+                if self._glo_ephemeris_sent.get(geo.sat.prn) == tb:
                     continue
-                self._glo_ephemeris_sent[eph.slot] = eph.ephem_time_ms
-            out.append(encode_gloephemeris(eph, body_fmt))
+                self._glo_ephemeris_sent[geo.sat.prn] = tb
+            out.append(encode_gloephemeris(glonass_ephemeris(self.constellation, geo.sat, t_gps_ns), body_fmt))
         return out
 
     def _delayed(self, t_gps_ns: int) -> Solution:
