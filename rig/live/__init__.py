@@ -13,9 +13,11 @@
 
 Binding anything but a loopback address needs a token (``--live-token`` or ``RIG_LIVE_TOKEN``).
 The status page and its JSON check it on every request. The Foxglove SDK (0.30) has no hook to
-accept or refuse a WebSocket connection, so the WebSocket server itself cannot check the token:
-on a LAN address anyone on that network who can reach the port can *read* the live channels; the
-server advertises no capability that lets a client publish, call services or set parameters.
+accept or refuse a WebSocket connection, so with a token its server listens on 127.0.0.1 only and
+the token gate (:mod:`rig.live.gate`) on the bound address refuses a WebSocket upgrade without the
+token (HTTP 401) and relays the authenticated ones. The server advertises no capability that lets a
+client publish, call services or set parameters. The token is a
+:class:`~drivers.relay.endpoints.Secret`: the addresses shown and logged carry ``token=***``.
 """
 
 from rig.live.feed import LIVE_TOPICS, LiveFeed, LiveOptions, LiveSink, foxglove_time

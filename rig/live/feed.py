@@ -36,6 +36,7 @@ from typing import Any, Protocol
 import pymap3d
 
 import rig.topics as T  # noqa: N812 - topics used as a namespace
+from drivers.relay.endpoints import Secret
 from rig.status import DeviceState, SessionStatus
 from rig.topics import foxglove_time
 from vsccore.angles import sideslip_from_azimuths
@@ -173,7 +174,8 @@ class LiveOptions:
     port: int = 8765
     """Foxglove WebSocket port (0: any free port)."""
     bind: str = "127.0.0.1"
-    token: str | None = None
+    token: Secret | None = None
+    """Needed on a non-loopback bind; with a token, the WebSocket and the status page both check it."""
     status_port: int | None = None
     """Status page port (default: ``port + 1``; 0: any free port)."""
     max_rate_hz: float = 50.0
@@ -191,19 +193,25 @@ class LiveOptions:
             raise ConfigError(f"--live-max-rate {self.max_rate_hz}: must be a positive number of Hz")
         if self.queue_size < 1:
             raise ConfigError(f"live queue size {self.queue_size}: must be >= 1")
+        if isinstance(self.token, str):  # a plain string from a caller: held as a Secret all the same
+            object.__setattr__(self, "token", Secret(self.token))
+        if self.token is not None and not self.token:
+            object.__setattr__(self, "token", None)
         if not is_loopback(self.bind):
             if not self.token:
                 raise ConfigError(
                     f"--live-bind {self.bind}: not a loopback address, so the live view needs a token: "
                     f"give --live-token TOKEN or set {TOKEN_ENV}"
                 )
-            if len(self.token) < MIN_TOKEN_CHARS:
-                raise ConfigError(f"--live-token: at least {MIN_TOKEN_CHARS} characters, got {len(self.token)}")
+            if len(self.token.reveal()) < MIN_TOKEN_CHARS:
+                raise ConfigError(
+                    f"--live-token: at least {MIN_TOKEN_CHARS} characters, got {len(self.token.reveal())}")
 
     @classmethod
     def from_cli(cls, port: int, bind: str, token: str | None, **kw: Any) -> LiveOptions:
         """Options of the command line; the token falls back to :data:`TOKEN_ENV`."""
-        return cls(port=port, bind=bind, token=token or os.environ.get(TOKEN_ENV) or None, **kw)
+        given = token or os.environ.get(TOKEN_ENV) or None
+        return cls(port=port, bind=bind, token=Secret(given) if given else None, **kw)
 
     @property
     def page_port(self) -> int:
@@ -419,8 +427,8 @@ class LiveFeed:
     def _pair(self, log_ns: int) -> None:
         """A new position of A or B: the baseline and, with A's course, the β reference of the pair."""
         a, b = self._pos.get(self._a or ""), self._pos.get(self._b or "")
-        if a is None or b is None or a.get("gps_time_ns") != b.get("gps_time_ns"):
-            return
+        if a is None or b is None or a.get(T.GPS_TIME.key) is None or a[T.GPS_TIME.key] != b.get(T.GPS_TIME.key):
+            return  # not the same epoch ({week, tow_ns}) of both
         try:
             e, n, u = pymap3d.geodetic2enu(a["lat_deg"], a["lon_deg"], a["height_msl_m"],
                                            b["lat_deg"], b["lon_deg"], b["height_msl_m"])

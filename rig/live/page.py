@@ -21,6 +21,7 @@ from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 import rig.topics as T  # noqa: N812 - topics used as a namespace
+from drivers.relay.endpoints import MASK, Secret
 from vsccore.errors import ConfigError
 
 __all__ = ["StatusPage", "render_page"]
@@ -145,7 +146,7 @@ class StatusPage:
     """
 
     def __init__(self, document: Callable[[], dict[str, Any]], *, host: str, port: int,
-                 token: str | None = None) -> None:
+                 token: Secret | None = None) -> None:
         self._document = document
         self._token = token
         page = self
@@ -155,7 +156,10 @@ class StatusPage:
                 page._serve(self)
 
             def log_message(self, format: str, *args: Any) -> None:
-                log.debug("status page: %s", format % args)
+                text = format % args  # the request line: its query carries the token
+                if page._token:
+                    text = text.replace(page._token.reveal(), MASK)
+                log.debug("status page: %s", text)
 
         try:
             self._httpd = ThreadingHTTPServer((host, port), Handler)
@@ -171,8 +175,11 @@ class StatusPage:
     def port(self) -> int:
         return int(self._httpd.server_address[1])
 
-    def url(self, host: str) -> str:
-        return f"http://{host}:{self.port}/" + (f"?token={self._token}" if self._token else "")
+    def url(self, host: str, *, reveal: bool = False) -> str:
+        """The page's address; with a token, ``?token=***`` unless ``reveal`` (never log a revealed one)."""
+        if not self._token:
+            return f"http://{host}:{self.port}/"
+        return f"http://{host}:{self.port}/?token=" + (self._token.reveal() if reveal else MASK)
 
     def _authorized(self, req: BaseHTTPRequestHandler) -> bool:
         if not self._token:
@@ -181,7 +188,7 @@ class StatusPage:
         auth = req.headers.get("Authorization", "")
         if auth.startswith("Bearer "):
             given = given or auth.removeprefix("Bearer ").strip()
-        return hmac.compare_digest(given.encode(), self._token.encode())
+        return hmac.compare_digest(given.encode(), self._token.reveal().encode())
 
     def _serve(self, req: BaseHTTPRequestHandler) -> None:
         path = urlsplit(req.path).path

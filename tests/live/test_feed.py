@@ -11,6 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 import rig.topics as T  # noqa: N812 - topics used as a namespace
+from drivers.relay.endpoints import Secret
 from rig.cli.main import app
 from rig.demo import demo_config_path
 from rig.live import LiveFeed, LiveOptions
@@ -47,8 +48,12 @@ def test_a_lan_address_needs_a_token(monkeypatch: pytest.MonkeyPatch) -> None:
         LiveOptions(bind="0.0.0.0", token="short")
     assert LiveOptions(bind="::1").token is None  # loopback: no token needed
     monkeypatch.setenv(TOKEN_ENV, "from-the-environment")
-    assert LiveOptions.from_cli(8765, "192.168.1.20", None).token == "from-the-environment"
-    assert LiveOptions.from_cli(8765, "192.168.1.20", "from-the-command-line").token == "from-the-command-line"
+    assert LiveOptions.from_cli(8765, "192.168.1.20", None).token == Secret("from-the-environment")
+    opts = LiveOptions.from_cli(8765, "192.168.1.20", "from-the-command-line")
+    assert opts.token == Secret("from-the-command-line")
+    # the token is a Secret: the options never spell it out (logs, tracebacks)
+    assert "from-the-command-line" not in repr(opts) and "from-the-command-line" not in str(opts)
+    assert LiveOptions(bind="10.0.0.7", token="a-plain-string-token").token == Secret("a-plain-string-token")
 
 
 def test_cli_refuses_a_lan_bind_without_token_before_anything_starts(tmp_path: Any,
@@ -90,7 +95,7 @@ def test_plot_channels_are_decimated_per_can_message_unless_full_rate() -> None:
 
 def test_the_status_page_wants_the_token() -> None:
     page = StatusPage(lambda: {"session": "s", "rovers": [], "recording_s": 65.0}, host="127.0.0.1", port=0,
-                      token="a-token-of-16-chr")
+                      token=Secret("a-token-of-16-chr"))
     try:
         base = f"http://127.0.0.1:{page.port}/"
         for url in (base, base + "status.json", base + "status.json?token=wrong"):
@@ -101,7 +106,8 @@ def test_the_status_page_wants_the_token() -> None:
         req = urllib.request.Request(base + "status.json", headers={"Authorization": "Bearer a-token-of-16-chr"})
         with urllib.request.urlopen(req, timeout=5.0) as r:
             assert json.loads(r.read())["recording_s"] == 65.0
-        with urllib.request.urlopen(page.url("127.0.0.1"), timeout=5.0) as r:
+        assert page.url("127.0.0.1").endswith("/?token=***")  # the address shown and logged
+        with urllib.request.urlopen(page.url("127.0.0.1", reveal=True), timeout=5.0) as r:
             assert 'id="recording">1:05<' in r.read().decode()
     finally:
         page.stop()

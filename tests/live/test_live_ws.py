@@ -17,6 +17,9 @@ ROLES = "/can/vsc/roles"
 
 def test_client_subscribes_and_receives_during_a_simulated_recording(live_run: LiveRun) -> None:
     url = live_run.view.ws_url
+    # loopback without a token: the SDK's server itself on the port, no gate in front
+    assert live_run.view.gate is None and live_run.view.sink is not None
+    assert url == f"ws://127.0.0.1:{live_run.view.sink.port}"
     got = collect(url, [FIX, ROLES, TOPIC_LIVE_SIDESLIP, TOPIC_LIVE_STATUS],
                   counts={FIX: 20, ROLES: 100, TOPIC_LIVE_SIDESLIP: 20, TOPIC_LIVE_STATUS: 2}, timeout_s=60.0)
     assert got.server_info.get("name", "").startswith("vsc-rig")

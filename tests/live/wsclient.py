@@ -34,11 +34,13 @@ class Received:
 
 
 async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_s: float,
-                   stop: threading.Event | None, until: Callable[[Received], bool] | None = None) -> Received:
+                   stop: threading.Event | None, until: Callable[[Received], bool] | None = None,
+                   headers: dict[str, str] | None = None) -> Received:
     out = Received()
     subs: dict[int, str] = {}
     deadline = time.monotonic() + timeout_s
-    async with connect(url, subprotocols=[Subprotocol(p) for p in SUBPROTOCOLS], max_size=None) as ws:
+    async with connect(url, subprotocols=[Subprotocol(p) for p in SUBPROTOCOLS], max_size=None,
+                       additional_headers=headers) as ws:
         assert ws.subprotocol in SUBPROTOCOLS
         out.subprotocol = str(ws.subprotocol)
         while True:
@@ -74,7 +76,9 @@ async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_
 
 
 def collect(url: str, topics: list[str], counts: dict[str, int] | None = None, timeout_s: float = 30.0,
-            stop: threading.Event | None = None, until: Callable[[Received], bool] | None = None) -> Received:
-    """Connect, subscribe to ``topics`` as they are advertised, and read until each has ``counts[topic]``
-    messages (default 1) and ``until`` (if given) holds, ``timeout_s`` passed or ``stop`` is set."""
-    return asyncio.run(_collect(url, topics, counts or {}, timeout_s, stop, until))
+            stop: threading.Event | None = None, until: Callable[[Received], bool] | None = None,
+            headers: dict[str, str] | None = None) -> Received:
+    """Connect (with extra request ``headers``), subscribe to ``topics`` as they are advertised, and read
+    until each has ``counts[topic]`` messages (default 1) and ``until`` (if given) holds, ``timeout_s``
+    passed or ``stop`` is set."""
+    return asyncio.run(_collect(url, topics, counts or {}, timeout_s, stop, until, headers))
