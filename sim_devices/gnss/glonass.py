@@ -187,39 +187,44 @@ _START_S = _SWITCH_S - int(STEP_S)
 
 
 class _Day:
-    """Nodes every 60 s of one day's integration, grown on demand; states as (6, n)."""
+    """Nodes every 60 s of one day's integration, grown on demand, as arrays (node, 6, satellite)."""
 
     def __init__(self, start_s: int, x0: FloatArray, slots: tuple[int, ...]) -> None:
         self.start_s = start_s
         self.slots = slots
         self._first = (start_s - ANCHOR_S) // int(STEP_S)  # 60 s steps from the grid's origin
-        self._nodes: list[FloatArray] = [x0]
+        n = len(slots)
+        self._nodes = np.empty((_DAY_S // int(STEP_S) + 64, 6, n))
+        self._accs = np.empty((self._nodes.shape[0], 3, n))
+        self._nodes[0] = x0
+        self._accs[0] = self._acc_of_node(0)
+        self._count = 1
         self._lock = threading.Lock()
-        self._acc: dict[int, FloatArray] = {}
 
-    def acc_of_node(self, k: int) -> FloatArray:
+    def _acc_of_node(self, k: int) -> FloatArray:
         j = (self._first + k) // _STEPS_PER_INTERVAL
-        a = self._acc.get(j)
-        if a is None:
-            a = np.array([lunisolar_mps2(s, j) for s in self.slots], dtype=np.float64).T.copy()
-            self._acc[j] = a
-        return a
+        return np.array([lunisolar_mps2(s, j) for s in self.slots], dtype=np.float64).T
 
     def _grow(self, k_max: int) -> None:
         with self._lock:
-            while len(self._nodes) <= k_max:
-                k = len(self._nodes) - 1
-                self._nodes.append(rk4_step(self._nodes[k], self.acc_of_node(k), STEP_S))
+            if k_max >= self._nodes.shape[0]:
+                raise ValueError(f"GLONASS truth: {k_max * STEP_S:g} s past the day's integration start")
+            for k in range(self._count - 1, k_max):
+                self._nodes[k + 1] = rk4_step(self._nodes[k], self._accs[k], STEP_S)
+                if (self._first + k + 1) % _STEPS_PER_INTERVAL:
+                    self._accs[k + 1] = self._accs[k]
+                else:
+                    self._accs[k + 1] = self._acc_of_node(k + 1)
+            self._count = max(self._count, k_max + 1)
 
     def states(self, rel_s: FloatArray) -> FloatArray:
         k = np.floor(rel_s / STEP_S).astype(np.intp)
         if np.any(k < 0):
             raise ValueError(f"GLONASS truth: {float(rel_s.min())} s before the day's integration start")
-        self._grow(int(k.max()))
+        k_max = int(k.max())
+        if k_max >= self._count:
+            self._grow(k_max)
         cols = np.arange(len(self.slots))
-        if np.all(k == k[0]):
-            x, acc = self._nodes[int(k[0])], self.acc_of_node(int(k[0]))
-        else:
-            x = np.stack([self._nodes[int(k[i])][:, i] for i in cols], axis=1)
-            acc = np.stack([self.acc_of_node(int(k[i]))[:, i] for i in cols], axis=1)
+        x = self._nodes[k, :, cols].T
+        acc = self._accs[k, :, cols].T
         return rk4_step(x, acc, rel_s - k * STEP_S)
