@@ -1,15 +1,26 @@
 """The receiving side of the replay tests: the rig's live CAN reader on a bus, its frames written as a second
-recording by the real recorder and read back with the dataset API."""
+recording by the real recorder and read back with the dataset API.
+
+:class:`ReceivingSide` runs that side in a process of its own, as on a bench where the ECU receives: a
+socketcand server on 127.0.0.1 (its bus stamps each frame when the player's ``< send >`` arrives) and the
+recorder reading from it. The player's process then holds no thread of the receiver, so the interpreter
+lock, the garbage collector and the scheduling of the receiving side do not delay the player's sends, and
+the stamps are taken where a bench interface takes them: on the receiving side.
+"""
 
 from __future__ import annotations
 
+import multiprocessing
 import threading
+from multiprocessing.connection import Connection
 from pathlib import Path
+from typing import Any
 
 import rig.topics as T  # noqa: N812 - short alias
 from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusSession, CanFrame, CanFrameFlag
 from rig.dataset import Session, load_session
 from rig.recorder import Attachment, Recorder, RecorderOptions, session_metadata
+from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from vsccore.clock import SystemClock
 
 
@@ -67,3 +78,70 @@ def _flags(f: CanFrame) -> T.CanFlag:
     if f.flags & CanFrameFlag.REMOTE:
         flags |= T.CanFlag.REMOTE
     return flags
+
+
+def _receiving_side(channel: str, source: str, out: str, count: int, timeout_s: float, conn: Connection) -> None:
+    """The child process of :class:`ReceivingSide`: serve ``vsc0`` over socketcand, record ``count`` frames."""
+    try:
+        with SocketcandServer(virtual_channel_opener({"vsc0": channel}), rawmode_settle_s=0.0) as server:
+            host, port = server.address
+            rx = CanBusConfig(interface="socketcand", channel="vsc0", options={"host": host, "port": port}, name="rx")
+            with ReceivingRecorder(rx) as receiver:
+                conn.send(("ready", host, port))
+                complete = receiver.wait_for(count, timeout_s)
+        if not complete:
+            conn.send(("error", f"received {len(receiver.frames)} of {count} frames in {timeout_s} s"))
+            return
+        receiver.write(Path(out), "again", load_session(source))
+        conn.send(("done", len(receiver.frames)))
+    except Exception as exc:  # reported to the test, which fails with it
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    finally:
+        conn.close()
+
+
+class ReceivingSide:
+    """A socketcand server with the rig's recorder reading from it, in another process (module docstring).
+
+    ``bus_spec`` is the player's ``--bus`` once it is ready; :meth:`result` waits for ``count`` frames and
+    returns them as a recording (``out/again``) written with ``source``'s DBC and role map.
+    """
+
+    def __init__(self, channel: str, source: Session, out: Path, count: int, timeout_s: float = 60.0) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, self._child = ctx.Pipe(duplex=False)
+        self._out = out
+        self._proc = ctx.Process(target=_receiving_side, name="replay-receiving-side",
+                                 args=(channel, str(source.path), str(out), count, timeout_s, self._child))
+        self.bus_spec = ""
+
+    def _recv(self, timeout_s: float) -> tuple[Any, ...]:
+        if not self._conn.poll(timeout_s):
+            raise AssertionError(f"receiving side: no answer in {timeout_s} s")
+        msg: tuple[Any, ...] = self._conn.recv()
+        if msg[0] == "error":
+            raise AssertionError(f"receiving side: {msg[1]}")
+        return msg
+
+    def __enter__(self) -> ReceivingSide:
+        self._proc.start()
+        self._child.close()
+        try:
+            _ready, host, port = self._recv(60.0)
+        except BaseException:
+            self.__exit__()
+            raise
+        self.bus_spec = f"socketcand:vsc0,host={host},port={port}"
+        return self
+
+    def result(self, timeout_s: float) -> Session:
+        """The received frames as a recording, once all have arrived (AssertionError otherwise)."""
+        self._recv(timeout_s)
+        return load_session(self._out / "again")
+
+    def __exit__(self, *exc: object) -> None:
+        self._proc.join(10.0)
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(5.0)
+        self._conn.close()

@@ -22,7 +22,7 @@ from drivers.can.vector_decode import VectorRoleDecoder
 from rig.dataset import Session
 from rig.replay import ReplayPlan, ReplayStats, build_plan, parse_bus_spec, parse_fault, replay_session
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
-from tests.replay.receiver import ReceivingRecorder
+from tests.replay.receiver import ReceivingRecorder, ReceivingSide
 
 MS = 1_000_000
 
@@ -139,20 +139,36 @@ def test_spacing_within_1ms_at_1x_on_a_virtual_bus(recorded: Session, channel: s
     assert stats.late_frames == 0, stats.summary()
 
 
+def _assert_spacing_within_1ms(plan: ReplayPlan, again: Session, note: str) -> None:
+    err = np.abs(_spacing_error_ns(plan, again, 1.0))
+    assert err.max() <= 1 * MS, (f"spacing error µs p50/p99/max {np.percentile(err, [50, 99, 100]) / 1e3}, "
+                                 f"{np.count_nonzero(err > MS)} of {err.size} > 1 ms; {note}")
+
+
 @pytest.mark.idle_host
-def test_spacing_within_1ms_at_1x_from_rig_replay_over_socketcand(recorded: Session, socketcand: SocketcandServer,
-                                                                  tmp_path: Path) -> None:
-    """``rig replay`` in a process of its own sends over TCP to the socketcand server, whose bus stamps each
-    frame when its ``< send >`` command arrives; the rig's reader receives them: every spacing within 1 ms."""
-    rx, tx = _socketcand_configs(socketcand)
+def test_spacing_within_1ms_at_1x_received_in_another_process(recorded: Session, channel: str,
+                                                               tmp_path: Path) -> None:
+    """The acceptance measurement: the player (here, :func:`replay_session`) sends over TCP to a socketcand
+    server in another process, whose bus stamps each frame as its ``< send >`` arrives, and the rig's recorder
+    there records them (:class:`ReceivingSide`): every frame's received spacing within 1 ms of the recorded."""
     plan = build_plan(recorded)
-    with ReceivingRecorder(rx) as receiver:
-        done = subprocess.run([sys.executable, "-m", "rig", "replay", str(recorded.path), "--bus", tx],
+    with ReceivingSide(channel, recorded, tmp_path, len(plan)) as side:
+        stats = replay_session(recorded.path, parse_bus_spec(side.bus_spec), speed=1.0)
+        again = side.result(30.0)
+    _assert_same_frames(plan, again, plan.recorded)
+    _assert_spacing_within_1ms(plan, again, f"player: {stats.summary()}")
+
+
+@pytest.mark.idle_host
+def test_spacing_within_1ms_at_1x_from_rig_replay_over_socketcand(recorded: Session, channel: str,
+                                                                  tmp_path: Path) -> None:
+    """``rig replay`` in a process of its own sends to the receiving side in a third process (as above)."""
+    plan = build_plan(recorded)
+    with ReceivingSide(channel, recorded, tmp_path, len(plan)) as side:
+        done = subprocess.run([sys.executable, "-m", "rig", "replay", str(recorded.path), "--bus", side.bus_spec],
                               capture_output=True, text=True, timeout=60, check=False)
         assert done.returncode == 0, done.stderr
-        assert receiver.wait_for(len(plan), 10.0)
-    again = receiver.write(tmp_path, "again", recorded)
+        again = side.result(30.0)
     _assert_same_frames(plan, again, plan.recorded)
-    err = np.abs(_spacing_error_ns(plan, again, 1.0))
-    assert err.max() <= 1 * MS, f"spacing error µs p50/p99/max {np.percentile(err, [50, 99, 100]) / 1e3}"
+    _assert_spacing_within_1ms(plan, again, f"rig replay: {done.stdout.strip().splitlines()[-1]}")
     assert done.stdout.strip().endswith(" 0 frames > 1 ms late"), done.stdout
