@@ -586,6 +586,8 @@ class RecordSession:
         now = self.clock.now_ns()
         t = self.timebase.host_to_utc(now)
         for rec in self.timebase.quality_json():
+            # the offset (e.g. GPS − Unix epochs, ~3.2e17 ns) as foxglove.Duration: exact in JavaScript readers
+            rec["offset"] = T.TIMEBASE_OFFSET.to_json(rec.pop(T.TIMEBASE_OFFSET.column, None))
             rig.put(T.TOPIC_TIMEBASE, t, now, rec)
 
     def _housekeeping(self) -> None:

@@ -150,7 +150,7 @@ _MAX_SLOTS = 64
 _NAME_BYTES = (_SLOT - _S_NAME) * 8
 _MAGIC = 0x56534349  # "VSCI": slot layout 3 (pid, thread, release records)
 (_H_MAGIC, _H_SLOTS, _H_PAUSED, _H_HIGH, _H_CLAMP_SINCE, _H_OFF, _H_PAUSES, _H_IGNORED, _H_RELEASES,
- _H_SAFETY) = range(10)
+ _H_SAFETY, _H_EPOCH) = range(11)
 _REC = 8
 """int64 words per release record: slot, reason, monotonic ns, clock ns, held wall ns, then the detail."""
 _R_DETAIL = 5
@@ -300,6 +300,9 @@ class ClockGovernor:
         self._final = (0, 0)
         self._stats: GovernorStats | None = None
         self._next_check_ns = 0
+        self._epoch = -1
+        self._local_high = _NEVER
+        self._slow = (UNBOUNDED_NS, -1, -1)
 
     @classmethod
     def create(cls, budget_ns: int, stall_limit_s: float = SAFETY_LIMIT_S) -> ClockGovernor:
@@ -354,6 +357,7 @@ class ClockGovernor:
                 w[base + _S_COUNT] = ALL_FRAMES
                 w[base + _S_VALUE] = value
                 w[base + _S_PROGRESS] = progress_ns
+                w[_H_EPOCH] += 1
                 return names.index(name)
             if n >= _MAX_SLOTS:
                 raise ValueError(f"clock governor: no slot left for participant {name!r} ({_MAX_SLOTS} in use)")
@@ -371,12 +375,15 @@ class ClockGovernor:
             for i in range(_SLOT - _S_NAME):
                 w[base + _S_NAME + i] = int.from_bytes(raw[8 * i: 8 * i + 8], "little", signed=True)
             w[_H_SLOTS] = n + 1
+            w[_H_EPOCH] += 1
             return n
 
     def publish(self, slot: int, progress_ns: int) -> None:
         """Set a slot's progress (one writer per slot: an aligned 8-byte store needs no lock)."""
         if self._fd >= 0:
-            self._w[_HDR + slot * _SLOT + _S_PROGRESS] = progress_ns
+            w = self._w
+            w[_HDR + slot * _SLOT + _S_PROGRESS] = progress_ns
+            w[_H_EPOCH] += 1
 
     def set_thread(self, slot: int, tid: int) -> None:
         """Name the thread (native id) that does slot ``slot``'s work: its end releases the slot."""
@@ -386,12 +393,16 @@ class ClockGovernor:
     def set_value(self, slot: int, value: int) -> None:
         """Set a slot's free value (a consumer's last taken stamp, for its producer to see)."""
         if self._fd >= 0:
-            self._w[_HDR + slot * _SLOT + _S_VALUE] = value
+            w = self._w
+            w[_HDR + slot * _SLOT + _S_VALUE] = value
+            w[_H_EPOCH] += 1
 
     def link(self, producer: int, consumer: int) -> None:
         """Make ``consumer`` the reader of what ``producer`` sends (see :meth:`sent`)."""
         if self._fd >= 0:
-            self._w[_HDR + producer * _SLOT + _S_PEER] = consumer + 1
+            w = self._w
+            w[_HDR + producer * _SLOT + _S_PEER] = consumer + 1
+            w[_H_EPOCH] += 1
 
     def sent(self, slot: int, stamp_ns: int) -> None:
         """Producer ``slot`` sends a frame stamped ``stamp_ns`` now (stamps never decrease)."""
@@ -408,13 +419,16 @@ class ClockGovernor:
                 w[base + _S_VALUE] = stamp_ns
             else:
                 w[base + _S_COUNT] += 1
+            w[_H_EPOCH] += 1
 
     def took(self, slot: int, stamp_ns: int, count: int) -> None:
         """Consumer ``slot`` has taken ``count`` frames stamped ``stamp_ns`` (and all before them)."""
         if self._fd >= 0:
             base = _HDR + slot * _SLOT
-            self._w[base + _S_COUNT] = count  # the count first: seen early it only means fewer taken
-            self._w[base + _S_VALUE] = stamp_ns
+            w = self._w
+            w[base + _S_COUNT] = count  # the count first: seen early it only means fewer taken
+            w[base + _S_VALUE] = stamp_ns
+            w[_H_EPOCH] += 1
 
     def find(self, name: str) -> int | None:
         """The slot index of participant ``name`` (None: not registered)."""
@@ -484,7 +498,41 @@ class ClockGovernor:
         return best, who, blame
 
     def now_ns(self, start_ns: int, speed: float, mono0: int) -> int:
-        """Current governed time (see the class docstring)."""
+        """Current governed time (see the class docstring).
+
+        The common case, a clock that runs, takes no file lock: the slowest participant is looked up
+        again only when a participant has written since (every write bumps a shared epoch word after
+        its own: an aligned 8-byte word is never torn, and a write not seen yet is one that happens
+        just after this call), and the paused time only grows, so a stale value can only make the
+        clock look further ahead, i.e. take the locked path. The highest time handed out is raised
+        without the file lock: two processes raising it in the same microsecond may leave the
+        lower of their two values (never below what either process handed out to itself, as each
+        copy keeps its own; the next clamp stands at the shared value).
+        """
+        with self._tlock:
+            if self._fd < 0:
+                raise ValueError(f"clock governor {self.path}: closed")
+            w = self._w
+            limit = UNBOUNDED_NS
+            if w[_H_OFF] == 0:
+                epoch = w[_H_EPOCH]
+                if epoch != self._epoch:
+                    self._epoch = epoch  # the epoch read before the look: a write during it bumps it again
+                    self._slow = self._slowest(w)
+                prog, who, _blame = self._slow
+                if who >= 0 and prog < UNBOUNDED_NS - self.budget_ns:
+                    limit = prog + self.budget_ns
+            if w[_H_CLAMP_SINCE] == 0:
+                free = start_ns + int((time.monotonic_ns() - mono0 - w[_H_PAUSED]) * speed)
+                if free <= limit:
+                    t = max(free, w[_H_HIGH], self._local_high)
+                    w[_H_HIGH] = t
+                    self._local_high = t
+                    return t
+        return self._now_locked(start_ns, speed, mono0)
+
+    def _now_locked(self, start_ns: int, speed: float, mono0: int) -> int:
+        """:meth:`now_ns` while the clock stands still (or is about to), under the file lock."""
         with self._locked() as w:
             mono = time.monotonic_ns()
             free = start_ns + int((mono - mono0 - w[_H_PAUSED]) * speed)
@@ -511,8 +559,9 @@ class ClockGovernor:
                         self._release_if_gone(w, who, blame, limit - self.budget_ns, t, mono - since)
             else:
                 w[_H_CLAMP_SINCE] = 0
-            t = max(t, high)
+            t = max(t, high, self._local_high)
             w[_H_HIGH] = t
+            self._local_high = t
             return t
 
     def _release_if_gone(self, w: memoryview, who: int, blame: int, progress: int, t: int, held: int) -> None:
@@ -525,6 +574,7 @@ class ClockGovernor:
         if reason is None:
             return
         w[_HDR + who * _SLOT + _S_IGNORED] = progress
+        w[_H_EPOCH] += 1
         w[_H_IGNORED] += 1
         w[_H_CLAMP_SINCE] = 0
         rel = self._record(w, blame, reason, detail, t, held)
