@@ -629,8 +629,12 @@ def _schema_types(topic: str) -> dict[str, str]:
         return {}
     doc = spec.schema.document
     props: Mapping[str, Any] = doc.get("properties", {}) if isinstance(doc, Mapping) else {}
+    ns = {f.key: f for f in spec.schema.ns_fields}
     out: dict[str, str] = {}
     for name, p in props.items():
+        if name in ns:  # an integer-ns time written as two integers: exported as its int64 ns column
+            out[ns[name].column] = "integer"
+            continue
         t = p.get("type", "object") if isinstance(p, dict) else "object"
         if isinstance(t, list):
             t = next((x for x in t if x != "null"), "object")
@@ -642,17 +646,32 @@ _ARROW_JSON_TYPES = ("number", "integer", "boolean", "string")
 _Times = npt.NDArray[np.int64] | Sequence[int]
 
 
-def _json_columns_arrow(types: Mapping[str, str], data: Sequence[bytes]
+def _topic_ns_fields(topic: str) -> dict[str, T.NsField]:
+    """The integer-ns times of a JSON topic by column (``gps_time_ns``: ``gps_time`` as ``{week, tow_ns}``)."""
+    try:
+        if topic in (T.TOPIC_EVENTS, T.TOPIC_TIMEBASE, T.TOPIC_RELAY_STATS):
+            spec = next(s for s in T.TOPICS if s.pattern == topic)
+        else:
+            spec = T.spec_for_topic(topic)[0]
+    except (ValueError, StopIteration):
+        return {}
+    return {f.column: f for f in spec.schema.ns_fields}
+
+
+def _json_columns_arrow(types: Mapping[str, str], data: Sequence[bytes], ns: Mapping[str, T.NsField] | None = None,
                         ) -> tuple[dict[str, npt.NDArray[Any]], dict[str, npt.NDArray[np.bool_]]] | None:
     """The columns of flat JSON messages parsed in bulk by Arrow's JSON reader, typed by the topic's schema;
-    None when a message does not fit that (then the rows are decoded one by one, which says what is wrong)."""
+    None when a message does not fit that (then the rows are decoded one by one, which says what is wrong).
+    A column of ``ns`` is read from its two-integer object or, in older files, its plain integer."""
     import pyarrow as pa
     import pyarrow.json as pj
 
+    ns = ns or {}
     if not types or any(t not in _ARROW_JSON_TYPES for t in types.values()):
         return None
     arrow_type = {"number": pa.float64(), "integer": pa.int64(), "boolean": pa.bool_(), "string": pa.string()}
-    schema = pa.schema([(n, arrow_type[t]) for n, t in types.items()])
+    schema = pa.schema([(n, arrow_type[t]) for n, t in types.items()]
+                       + [(f.key, pa.struct([(part, pa.int64()) for part in f.parts])) for f in ns.values()])
     buf = b"\n".join(data)
     try:
         tbl = pj.read_json(pa.BufferReader(buf),
@@ -666,7 +685,16 @@ def _json_columns_arrow(types: Mapping[str, str], data: Sequence[bytes]
     nulls: dict[str, npt.NDArray[np.bool_]] = {}
     for name, t in types.items():
         col = tbl.column(name)
-        if t == "number":
+        f = ns.get(name)
+        if f is not None:
+            obj = tbl.column(f.key).combine_chunks()
+            hi, lo = (np.asarray(obj.field(p).fill_null(0).to_numpy(zero_copy_only=False), dtype=np.int64)
+                      for p in f.parts)
+            new = np.asarray(obj.is_valid().to_numpy(zero_copy_only=False), dtype=bool)
+            old = np.asarray(col.fill_null(0).to_numpy(zero_copy_only=False), dtype=np.int64)
+            cols[name] = np.where(new, hi * f.scale + lo, old)
+            nulls[name] = ~new & np.asarray(col.is_null().to_numpy(zero_copy_only=False), dtype=bool)
+        elif t == "number":
             cols[name] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
         elif t == "integer":
             nulls[name] = np.asarray(col.is_null().to_numpy(zero_copy_only=False), dtype=bool)
@@ -678,7 +706,7 @@ def _json_columns_arrow(types: Mapping[str, str], data: Sequence[bytes]
     return cols, nulls
 
 
-def _json_columns_python(types: Mapping[str, str], data: Sequence[bytes]
+def _json_columns_python(types: Mapping[str, str], data: Sequence[bytes], ns: Mapping[str, T.NsField] | None = None,
                          ) -> tuple[dict[str, npt.NDArray[Any]], dict[str, npt.NDArray[np.bool_]]]:
     rows: list[dict[str, Any]] = json.loads(b"[" + b",".join(data) + b"]") if data else []
     names = list(types) or sorted({k for r in rows for k in r})
@@ -686,7 +714,8 @@ def _json_columns_python(types: Mapping[str, str], data: Sequence[bytes]
     nulls: dict[str, npt.NDArray[np.bool_]] = {}
     for name in names:
         t = types.get(name, "object")
-        vals = [r.get(name) for r in rows]
+        f = (ns or {}).get(name)
+        vals = [r.get(name) for r in rows] if f is None else [f.read(r) for r in rows]
         if t == "number":
             cols[name] = np.asarray([np.nan if v is None else float(v) for v in vals], dtype=np.float64)
         elif t == "integer":
@@ -706,8 +735,9 @@ def _json_chunk(group: str, kind: GroupKind, topic: str, log_time: _Times, host:
                 data: Sequence[bytes]) -> GroupChunk:
     """The messages of a JSON topic as columns (every property of its schema, typed by it)."""
     types = _schema_types(topic)
-    parsed = _json_columns_arrow(types, data)
-    fields, nulls = parsed if parsed is not None else _json_columns_python(types, data)
+    ns = _topic_ns_fields(topic)
+    parsed = _json_columns_arrow(types, data, ns)
+    fields, nulls = parsed if parsed is not None else _json_columns_python(types, data, ns)
     cols: dict[str, npt.NDArray[Any]] = {"host_ns": np.asarray(host, dtype=np.int64), **fields}
     if kind is GroupKind.EVENTS and "time_ns" in cols:
         cols["event_time_ns"] = cols.pop("time_ns")

@@ -1118,7 +1118,7 @@ def _timebase(parts: Sequence[_PartRead]) -> tuple[tuple[ClockInfo, ...], int, l
             status=str(rec.get("status", "")),
             n=_opt_int(rec.get("n")) or 0,
             span_s=_opt_float(rec.get("span_s")),
-            offset_ns=_opt_int(rec.get("offset_ns")),
+            offset_ns=_opt_int(T.TIMEBASE_OFFSET.read(rec)),
             drift_ppm=_opt_float(rec.get("drift_ppm")),
             jitter_ns=_opt_float(rec.get("jitter_ns")),
             latency_p50_ns=_opt_float(rec.get("latency_p50_ns")),

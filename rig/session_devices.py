@@ -138,6 +138,8 @@ def _record(kind: str, header: Any, body: Any) -> dict[str, Any]:
         v = getattr(header if f.header else body, f.name, None)
         if f.enum is not None:
             out[f.key] = v.name if v is not None else "UNKNOWN"
+        elif f.ns is not None:
+            out[f.ns.key] = f.ns.to_json(v)
         else:
             out[f.key] = _finite(v) if isinstance(v, float) else v
     return out
@@ -508,8 +510,8 @@ class CanDevice(Device):
             bad = []
         valid = not bits
         self.source.put(self.topic_roles, t, f.host_ts_ns, {
-            "can_id": f.arbitration_id, "message": dec.message, "device_time_ns": f.device_ts_ns,
-            "roles": roles, "valid": valid, "flags": bad,
+            "can_id": f.arbitration_id, "message": dec.message,
+            "device_time": T.CAN_DEVICE_TIME.to_json(f.device_ts_ns), "roles": roles, "valid": valid, "flags": bad,
         })
 
     def flush(self, older_than_ns: int | None = None) -> None:

@@ -12,7 +12,10 @@ Two kinds of topic:
   encoding :data:`LAYOUT_SCHEMA_ENCODING`: the schema record holds a JSON description of the
   layout, so a file explains itself);
 - *decoded*, for people and tools: JSON messages with JSON Schemas, so Foxglove can plot and map
-  them (``foxglove.LocationFix`` uses the official Foxglove field names).
+  them (``foxglove.LocationFix`` uses the official Foxglove field names). No JSON integer reaches 2^53,
+  where a JavaScript reader's double stops being exact: integer-ns times are objects of two integers
+  (:class:`NsField`: GPS time as ``{week, tow_ns}``, Unix times as ``foxglove.Time``, offsets as
+  ``foxglove.Duration``), and readers get them back as int ns (decision record 0005).
 
 Times: ``log_time`` is the best estimate of when the thing happened on the common time base
 (GPS-derived UTC, ns since the Unix epoch); ``publish_time`` is the host receive time.
@@ -42,9 +45,15 @@ if TYPE_CHECKING:
 __all__ = [
     "BINARY_ENCODING",
     "CAN_BLOCK_HEADER",
+    "CAN_DEVICE_TIME",
     "DAQ_BLOCK_HEADER",
+    "EVENT_END",
+    "EVENT_START",
+    "GPS_TIME",
+    "GPS_WEEK_NS",
     "JSON_ENCODING",
     "JSON_SCHEMA_ENCODING",
+    "JS_EXACT_INT",
     "LAYOUT_SCHEMA_ENCODING",
     "METADATA_CALIBRATION",
     "METADATA_PART",
@@ -53,6 +62,7 @@ __all__ = [
     "METADATA_SESSION",
     "METADATA_VEHICLE",
     "NO_TIME_NS",
+    "TIMEBASE_OFFSET",
     "TOPICS",
     "TOPIC_EVENTS",
     "TOPIC_RELAY_RAW",
@@ -65,6 +75,8 @@ __all__ = [
     "DaqBlock",
     "Event",
     "EventKind",
+    "NsField",
+    "NsForm",
     "SchemaSpec",
     "Severity",
     "TopicSpec",
@@ -76,6 +88,7 @@ __all__ = [
     "encode_json",
     "encode_record",
     "flatten_metadata",
+    "foxglove_duration",
     "foxglove_time",
     "gnss_bestpos",
     "gnss_bestvel",
@@ -85,6 +98,7 @@ __all__ = [
     "gnss_marktime",
     "gnss_raw",
     "gnss_time",
+    "gps_week_tow",
     "location_fix",
     "optical",
     "pack_can_block",
@@ -320,6 +334,8 @@ class SchemaSpec:
     schema_encoding: str
     document: Mapping[str, Any]
     """The JSON Schema (decoded topics) or the layout description (raw topics)."""
+    ns_fields: tuple[NsField, ...] = ()
+    """The integer-ns values of a JSON topic written as objects of two integers (readers get int ns columns)."""
 
     @property
     def data(self) -> bytes:
@@ -394,19 +410,183 @@ def _obj(
 # (encode_record); its description says so.
 
 
+JS_EXACT_INT = 2**53
+"""JavaScript readers (Foxglove) read every JSON number as a double: integers with ``|v| < 2**53`` are exact,
+larger ones are rounded (ns since 1970, ~2^60.6, land on a 256 ns grid: up to 128 ns off). No JSON message
+of a session carries an integer that large (decision record 0005)."""
+
+_NS_PER_S = 1_000_000_000
+GPS_WEEK_NS = 604_800 * _NS_PER_S
+"""One GPS week in ns."""
+
+
 def foxglove_time(ns: int) -> dict[str, int]:
     """``foxglove.Time`` ``{sec, nsec}`` of integer ns since the Unix epoch. JavaScript readers (Foxglove)
     read a JSON integer as a double: ns since 1970 (~2^60.6) come out on a 256 ns grid, up to 128 ns off;
     seconds and nanoseconds apart are exact."""
-    sec, nsec = divmod(int(ns), 1_000_000_000)
+    sec, nsec = divmod(int(ns), _NS_PER_S)
     return {"sec": sec, "nsec": nsec}
 
 
-def _time(desc: str) -> dict[str, Any]:
-    return {"type": "object", "title": "time", "description": desc,
-            "properties": {"sec": {"type": "integer", "minimum": 0},
-                           "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}},
-            "required": ["sec", "nsec"]}
+def foxglove_duration(ns: int) -> dict[str, int]:
+    """``foxglove.Duration`` ``{sec, nsec}`` of a signed interval in integer ns (``nsec`` in [0, 1e9), in the
+    positive direction: −1.5 s is ``{sec: -2, nsec: 500000000}``)."""
+    sec, nsec = divmod(int(ns), _NS_PER_S)
+    return {"sec": sec, "nsec": nsec}
+
+
+def gps_week_tow(gps_ns: int) -> dict[str, int]:
+    """``{week, tow_ns}`` of integer ns since the GPS epoch (1980-01-06 00:00:00 GPS time, no leap seconds):
+    the full GPS week number and the time of week in ns, as a NovAtel log header states it (week and ms)."""
+    week, tow_ns = divmod(int(gps_ns), GPS_WEEK_NS)
+    return {"week": week, "tow_ns": tow_ns}
+
+
+class NsForm(StrEnum):
+    """How an integer-ns value is written in JSON: two integers, each exact in a JavaScript reader."""
+
+    GPS_WEEK_TOW = "gps_week_tow"
+    """``{week, tow_ns}`` on the GPS time scale (:func:`gps_week_tow`); not a ``foxglove.Time``, which is
+    Unix time to a viewer."""
+    TIME = "time"
+    """``foxglove.Time`` ``{sec, nsec}``, ns since the Unix epoch (:func:`foxglove_time`)."""
+    DURATION = "duration"
+    """``foxglove.Duration`` ``{sec, nsec}``, a signed interval (:func:`foxglove_duration`)."""
+
+
+_NS_PARTS: dict[NsForm, tuple[str, str, int]] = {
+    NsForm.GPS_WEEK_TOW: ("week", "tow_ns", GPS_WEEK_NS),
+    NsForm.TIME: ("sec", "nsec", _NS_PER_S),
+    NsForm.DURATION: ("sec", "nsec", _NS_PER_S),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class NsField:
+    """An integer-ns value of a JSON topic: member ``key`` holds it as an object of two integers (``form``);
+    readers get it as int ns under ``column``, which is also the plain-integer member that files written
+    before decision record 0005 carry instead (read back as well)."""
+
+    key: str
+    column: str
+    form: NsForm
+
+    @property
+    def parts(self) -> tuple[str, str]:
+        """The two members of the object (``("week", "tow_ns")`` or ``("sec", "nsec")``)."""
+        hi, lo, _scale = _NS_PARTS[self.form]
+        return hi, lo
+
+    @property
+    def scale(self) -> int:
+        """ns per unit of the high part: ns = high·scale + low."""
+        return _NS_PARTS[self.form][2]
+
+    def to_json(self, ns: int | None) -> dict[str, int] | None:
+        """The JSON object of ``ns`` (None stays None: the member is then left out, see :func:`encode_record`)."""
+        if ns is None:
+            return None
+        hi, lo, scale = _NS_PARTS[self.form]
+        a, b = divmod(int(ns), scale)
+        return {hi: a, lo: b}
+
+    def from_json(self, value: Any) -> int:
+        """Integer ns of the JSON object (exact: Python integers).
+
+        Raises:
+            ValueError: ``value`` is not an object of the two integers, or the low part is out of range.
+        """
+        hi, lo, scale = _NS_PARTS[self.form]
+        a = value.get(hi) if isinstance(value, Mapping) else None
+        b = value.get(lo) if isinstance(value, Mapping) else None
+        if not (isinstance(a, int) and isinstance(b, int)) or isinstance(a, bool) or isinstance(b, bool):
+            raise ValueError(f"{self.key}: expected an object of integers {{{hi}, {lo}}}, got {value!r}")
+        if not 0 <= b < scale:
+            raise ValueError(f"{self.key}.{lo}: {b} is outside [0, {scale})")
+        return a * scale + b
+
+    def read(self, record: Mapping[str, Any]) -> int | None:
+        """The value of ``record`` in int ns: from ``key`` (this form) or from ``column`` (a plain integer,
+        as written before); None when it has neither.
+
+        Raises:
+            ValueError: a member of the wrong shape (naming it).
+        """
+        value = record.get(self.key)
+        if value is not None:
+            return self.from_json(value)
+        old = record.get(self.column)
+        if old is None:
+            return None
+        if not isinstance(old, int) or isinstance(old, bool):
+            raise ValueError(f"{self.column}: expected integer ns, got {old!r}")
+        return old
+
+    def schema(self, desc: str) -> dict[str, Any]:
+        """The JSON-Schema property of ``key``."""
+        hi, lo, scale = _NS_PARTS[self.form]
+        if self.form is NsForm.GPS_WEEK_TOW:
+            return {"type": "object", "title": "vsc_rig.GpsWeekTow",
+                    "description": f"{desc}: GPS time (GPS time scale, no leap seconds; not Unix time) as the full "
+                    "GPS week number since 1980-01-06 and the time of week in ns; ns since the GPS epoch = "
+                    "week·604800·10^9 + tow_ns",
+                    "properties": {hi: {"type": "integer", "minimum": 0, "description": "GPS week number"},
+                                   lo: {"type": "integer", "minimum": 0, "maximum": scale - 1,
+                                        "description": "Time of week (ns)"}},
+                    "required": [hi, lo], "additionalProperties": False}
+        if self.form is NsForm.TIME:
+            return {"type": "object", "title": "time", "description": f"{desc} as foxglove.Time (ns since the Unix "
+                    "epoch = sec·10^9 + nsec)",
+                    "properties": {hi: {"type": "integer", "minimum": 0},
+                                   lo: {"type": "integer", "minimum": 0, "maximum": scale - 1}},
+                    "required": [hi, lo], "additionalProperties": False}
+        return {"type": "object", "title": "duration", "description": f"{desc} as foxglove.Duration (ns = "
+                "sec·10^9 + nsec, nsec in the positive direction)",
+                "properties": {hi: {"type": "integer"}, lo: {"type": "integer", "minimum": 0, "maximum": scale - 1}},
+                "required": [hi, lo], "additionalProperties": False}
+
+
+GPS_TIME = NsField("gps_time", "gps_time_ns", NsForm.GPS_WEEK_TOW)
+"""GPS time of a decoded GNSS record (readers: ``gps_time_ns``, ns since the GPS epoch)."""
+CAN_DEVICE_TIME = NsField("device_time", "device_time_ns", NsForm.TIME)
+"""A decoded CAN frame's interface timestamp (readers: ``device_time_ns``)."""
+TIMEBASE_OFFSET = NsField("offset", "offset_ns", NsForm.DURATION)
+"""``/rig/timebase`` reference − device offset (readers: ``offset_ns``)."""
+EVENT_START = NsField("start", "start_ns", NsForm.TIME)
+"""Start of an event's interval (readers: :attr:`Event.start_ns`)."""
+EVENT_END = NsField("end", "end_ns", NsForm.TIME)
+"""End of an event's interval (readers: :attr:`Event.end_ns`)."""
+
+_BIG_INT_RE = re.compile(r"-?[0-9]{16,19}")
+
+
+def _big_ints_as_text(obj: Any) -> Any:
+    """``obj`` with every integer of ``|v| >= 2**53`` as its decimal string (inside objects and arrays)."""
+    if isinstance(obj, bool):
+        return obj
+    if isinstance(obj, int | np.integer):
+        v = int(obj)
+        return str(v) if abs(v) >= JS_EXACT_INT else v
+    if isinstance(obj, Mapping):
+        return {k: _big_ints_as_text(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_big_ints_as_text(v) for v in obj]
+    return obj
+
+
+def _big_ints_from_text(obj: Any) -> Any:
+    """Inverse of :func:`_big_ints_as_text`: a decimal string of ``|v| >= 2**53`` (and < 2**63) is the integer."""
+    if isinstance(obj, str):
+        if _BIG_INT_RE.fullmatch(obj):
+            v = int(obj)
+            if JS_EXACT_INT <= abs(v) < 2**63:
+                return v
+        return obj
+    if isinstance(obj, Mapping):
+        return {k: _big_ints_from_text(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_big_ints_from_text(v) for v in obj]
+    return obj
 
 
 def _num(desc: str, nullable: bool = False) -> dict[str, Any]:
@@ -430,12 +610,12 @@ def _bool(desc: str) -> dict[str, Any]:
     return {"type": "boolean", "description": desc}
 
 
-_GPS_TIME = _int("GPS time of the solution or event from the log header (ns since the GPS epoch 1980-01-06)")
+_GPS_TIME = GPS_TIME.schema("GPS time of the solution or event from the log header")
 _SOL_STATUS = _str("NovAtel solution status name (e.g. SOL_COMPUTED)")
 _POS_TYPE = _str("NovAtel position or velocity type name (e.g. NARROW_INT)")
 
 _POSITION_PROPS: dict[str, Any] = {
-    "gps_time_ns": _GPS_TIME,
+    "gps_time": _GPS_TIME,
     "time_status": _str("NovAtel time status of the log header (e.g. FINESTEERING)"),
     "sol_status": _SOL_STATUS,
     "pos_type": _POS_TYPE,
@@ -455,7 +635,7 @@ _POSITION_PROPS: dict[str, Any] = {
     "ext_sol_status": _int("Extended solution status bits", True),
 }
 _POSITION_REQUIRED = (
-    "gps_time_ns",
+    "gps_time",
     "sol_status",
     "pos_type",
     "lat_deg",
@@ -471,6 +651,7 @@ SCHEMA_BESTPOS = SchemaSpec(
     JSON_ENCODING,
     JSON_SCHEMA_ENCODING,
     _obj("vsc_rig.gnss.BestPos", "NovAtel BESTPOS of one receiver", _POSITION_PROPS, _POSITION_REQUIRED),
+    ns_fields=(GPS_TIME,),
 )
 SCHEMA_MARKPOS = SchemaSpec(
     "vsc_rig.gnss.MarkPos",
@@ -478,10 +659,11 @@ SCHEMA_MARKPOS = SchemaSpec(
     JSON_SCHEMA_ENCODING,
     _obj(
         "vsc_rig.gnss.MarkPos",
-        "NovAtel MARKPOS: position at the event-input (sync switch) edge; gps_time_ns is the mark time",
+        "NovAtel MARKPOS: position at the event-input (sync switch) edge; gps_time is the mark time",
         {**_POSITION_PROPS, "event_input": _str("Event input (MARK1, MARK2, ...)")},
         _POSITION_REQUIRED,
     ),
+    ns_fields=(GPS_TIME,),
 )
 SCHEMA_BESTVEL = SchemaSpec(
     "vsc_rig.gnss.BestVel",
@@ -491,18 +673,18 @@ SCHEMA_BESTVEL = SchemaSpec(
         "vsc_rig.gnss.BestVel",
         "NovAtel BESTVEL of one receiver",
         {
-            "gps_time_ns": _GPS_TIME,
+            "gps_time": _GPS_TIME,
             "time_status": _str("NovAtel time status of the log header"),
             "sol_status": _SOL_STATUS,
             "vel_type": _POS_TYPE,
-            "latency_s": _num("Velocity latency: the velocity is valid latency_s before gps_time_ns (s)"),
+            "latency_s": _num("Velocity latency: the velocity is valid latency_s before gps_time (s)"),
             "diff_age_s": _num("Differential age (s)", True),
             "hor_speed_mps": _num("Horizontal speed over ground (m/s)"),
             "track_over_ground_deg": _num("Course over ground, azimuth clockwise from true north (deg)"),
             "vert_speed_mps": _num("Vertical speed, positive up (m/s)"),
         },
         (
-            "gps_time_ns",
+            "gps_time",
             "sol_status",
             "vel_type",
             "latency_s",
@@ -511,9 +693,10 @@ SCHEMA_BESTVEL = SchemaSpec(
             "vert_speed_mps",
         ),
     ),
+    ns_fields=(GPS_TIME,),
 )
 _CLOCK_PROPS: dict[str, Any] = {
-    "gps_time_ns": _GPS_TIME,
+    "gps_time": _GPS_TIME,
     "clock_status": _str("NovAtel clock model status (e.g. VALID)"),
     "clock_offset_s": _num("Receiver clock offset (s)", True),
     "clock_offset_std_s": _num("Receiver clock offset standard deviation (s)", True),
@@ -527,8 +710,9 @@ SCHEMA_MARKTIME = SchemaSpec(
         "vsc_rig.gnss.MarkTime",
         "NovAtel MARKTIME: GPS time of the event-input (sync switch) edge",
         {**_CLOCK_PROPS, "event_input": _str("Event input (MARK1, MARK2, ...)")},
-        ("gps_time_ns", "clock_status"),
+        ("gps_time", "clock_status"),
     ),
+    ns_fields=(GPS_TIME,),
 )
 SCHEMA_TIME = SchemaSpec(
     "vsc_rig.gnss.Time",
@@ -543,8 +727,9 @@ SCHEMA_TIME = SchemaSpec(
             "utc_status": _str("NovAtel UTC status (INVALID, VALID, WARNING)"),
             "utc_iso": _str("UTC date and time reported by the receiver (ISO 8601)"),
         },
-        ("gps_time_ns", "clock_status", "utc_status"),
+        ("gps_time", "clock_status", "utc_status"),
     ),
+    ns_fields=(GPS_TIME,),
 )
 SCHEMA_HEADING = SchemaSpec(
     "vsc_rig.gnss.Heading",
@@ -554,7 +739,7 @@ SCHEMA_HEADING = SchemaSpec(
         "vsc_rig.gnss.Heading",
         "NovAtel HEADING2 / dual-antenna heading of the baseline from the main to the auxiliary antenna",
         {
-            "gps_time_ns": _GPS_TIME,
+            "gps_time": _GPS_TIME,
             "sol_status": _SOL_STATUS,
             "pos_type": _POS_TYPE,
             "length_m": _num("Baseline length (m)"),
@@ -565,8 +750,9 @@ SCHEMA_HEADING = SchemaSpec(
             "num_svs": _int("Satellites tracked", True),
             "num_sol_svs": _int("Satellites used", True),
         },
-        ("gps_time_ns", "sol_status", "pos_type", "length_m", "heading_deg", "pitch_deg"),
+        ("gps_time", "sol_status", "pos_type", "length_m", "heading_deg", "pitch_deg"),
     ),
+    ns_fields=(GPS_TIME,),
 )
 # The official Foxglove schema (github.com/foxglove/schemas, LocationFix.json): same fields and types.
 SCHEMA_LOCATION_FIX = SchemaSpec(
@@ -636,7 +822,9 @@ SCHEMA_CAN_ROLES = SchemaSpec(
         {
             "can_id": _int("Arbitration id"),
             "message": _str("DBC message name"),
-            "device_time_ns": _int("Interface timestamp (ns, interface clock) or null", True),
+            "device_time": CAN_DEVICE_TIME.schema(
+                "Interface timestamp on the interface's clock (python-can's seconds since the Unix epoch; not the "
+                "common time base; absent when the interface gives none)"),
             "roles": _map(
                 "role → SI value (only the roles this frame carries); other role names may appear",
                 {"type": "number", "description": "SI value (absent when unknown)"},
@@ -651,6 +839,7 @@ SCHEMA_CAN_ROLES = SchemaSpec(
         },
         ("can_id", "message", "roles", "valid"),
     ),
+    ns_fields=(CAN_DEVICE_TIME,),
 )
 SCHEMA_OPTICAL = SchemaSpec(
     "vsc_rig.optical.Sample",
@@ -715,7 +904,7 @@ SCHEMA_TIMEBASE = SchemaSpec(
             "status": _str("ok, converging, no_data, stale"),
             "n": _int("Pairs or matched pulses used"),
             "span_s": _num("Device-time span of the data used (s)"),
-            "offset_ns": _int("reference − device at the reference point (ns)", True),
+            "offset": TIMEBASE_OFFSET.schema("reference − device at the reference point (absent when unknown)"),
             "drift_ppm": _num("Rate of the reference relative to the device clock, minus 1, in ppm", True),
             "jitter_ns": _num("Standard deviation of the residuals above the envelope (ns)", True),
             "latency_p50_ns": _num("Median residual above the envelope (ns)", True),
@@ -726,6 +915,7 @@ SCHEMA_TIMEBASE = SchemaSpec(
         },
         ("clock", "method", "reference", "status", "n"),
     ),
+    ns_fields=(TIMEBASE_OFFSET,),
 )
 
 
@@ -767,14 +957,14 @@ SCHEMA_EVENT = SchemaSpec(
             "severity": {"type": "string", "enum": [s.value for s in Severity]},
             "source": _str("Device or component concerned"),
             "text": _str("One line for people"),
-            "start_ns": _int("Start of the affected interval on the common time base (ns), if any", True),
-            "end_ns": _int("End of the affected interval on the common time base (ns), if any", True),
-            "start": _time("start_ns as foxglove.Time (exact in JavaScript readers), if any"),
-            "end": _time("end_ns as foxglove.Time (exact in JavaScript readers), if any"),
-            "details": _map("Machine-readable details (counts, topics, values)", True),
+            "start": EVENT_START.schema("Start of the affected interval on the common time base, if any"),
+            "end": EVENT_END.schema("End of the affected interval on the common time base, if any"),
+            "details": _map("Machine-readable details (counts, topics, values; an integer beyond ±2^53, such as ns "
+                            "since an epoch, as its decimal string, exact in JavaScript readers)", True),
         },
         ("kind", "severity", "source", "text"),
     ),
+    ns_fields=(EVENT_START, EVENT_END),
 )
 
 
@@ -946,15 +1136,27 @@ class LogField:
     column) ``name`` of the NovAtel log's header or body; enums are recorded by name."""
 
     key: str
+    """The column readers get (:mod:`rig.dataset`)."""
     name: str
     header: bool = False
     enum: type[Enum] | None = None
+    ns: NsField | None = None
+    """How the value is written in JSON when it is an integer-ns time (``key`` is then ``ns.column``)."""
+
+    @property
+    def json_key(self) -> str:
+        """The member of the JSON record."""
+        return self.key if self.ns is None else self.ns.key
+
+    def to_json(self, value: Any) -> Any:
+        """``value`` as written in the JSON record (enums by name: see :attr:`enum`, done by the caller)."""
+        return value if self.ns is None else self.ns.to_json(value)
 
 
 def _gnss_record_fields() -> dict[str, tuple[LogField, ...]]:
     from drivers.novatel.enums import ClockModelStatus, Datum, PositionType, SolutionStatus, TimeStatus, UTCStatus
 
-    gps = LogField("gps_time_ns", "gps_ns", header=True)
+    gps = LogField(GPS_TIME.column, "gps_ns", header=True, ns=GPS_TIME)
     sol = LogField("sol_status", "sol_status", enum=SolutionStatus)
     clock = (LogField("clock_status", "clock_status", enum=ClockModelStatus), LogField("clock_offset_s", "offset_s"),
              LogField("clock_offset_std_s", "offset_std_s"), LogField("utc_offset_s", "utc_offset_s"))
@@ -982,7 +1184,7 @@ def _gnss_record_fields() -> dict[str, tuple[LogField, ...]]:
             LogField("num_svs", "num_svs"), LogField("num_sol_svs", "num_soln_svs"),
         ),
         # the event's GPS time, not the log's; plus event_input (always MARK1)
-        "marktime": (LogField("gps_time_ns", "event_gps_ns"), *clock),
+        "marktime": (LogField(GPS_TIME.column, "event_gps_ns", ns=GPS_TIME), *clock),
         # plus utc_iso, formatted from the UTC fields
         "time": (gps, *clock, LogField("leap_seconds", "leap_seconds"),
                  LogField("utc_status", "utc_status", enum=UTCStatus)),
@@ -1081,7 +1283,9 @@ def spec_for_topic(topic: str) -> tuple[TopicSpec, dict[str, str]]:
 
 @dataclass(frozen=True, slots=True)
 class Event:
-    """One entry of ``/rig/events``."""
+    """One entry of ``/rig/events``. In JSON (:meth:`to_json`) the interval is ``start``/``end`` as
+    ``foxglove.Time`` and a details integer beyond ±2^53 is its decimal string; :meth:`from_json` gives the
+    int values back."""
 
     kind: EventKind
     source: str
@@ -1097,23 +1301,26 @@ class Event:
             "severity": self.severity.value,
             "source": self.source,
             "text": self.text,
-            "start_ns": self.start_ns,
-            "end_ns": self.end_ns,
-            "start": None if self.start_ns is None else foxglove_time(self.start_ns),
-            "end": None if self.end_ns is None else foxglove_time(self.end_ns),
-            "details": dict(self.details),
+            "start": EVENT_START.to_json(self.start_ns),
+            "end": EVENT_END.to_json(self.end_ns),
+            "details": _big_ints_as_text(self.details),
         }
 
     @classmethod
     def from_json(cls, obj: Mapping[str, Any]) -> Event:
+        """Inverse of :meth:`to_json`; also reads the plain-integer ``start_ns``/``end_ns`` of older files.
+
+        Raises:
+            ValueError: an unknown kind or severity, or a start/end of the wrong shape.
+        """
         return cls(
             kind=EventKind(obj["kind"]),
             source=str(obj["source"]),
             text=str(obj["text"]),
             severity=Severity(obj["severity"]),
-            start_ns=obj.get("start_ns"),
-            end_ns=obj.get("end_ns"),
-            details=dict(obj.get("details") or {}),
+            start_ns=EVENT_START.read(obj),
+            end_ns=EVENT_END.read(obj),
+            details=_big_ints_from_text(dict(obj.get("details") or {})),
         )
 
 

@@ -213,7 +213,7 @@ def test_the_gnss_field_table_fills_each_topic_schema() -> None:
                "heading": [T.SCHEMA_HEADING], "marktime": [T.SCHEMA_MARKTIME], "time": [T.SCHEMA_TIME]}
     assert set(schemas) == set(T.GNSS_RECORD_FIELDS)
     for kind, specs in schemas.items():
-        keys = [f.key for f in T.GNSS_RECORD_FIELDS[kind]]
+        keys = [f.json_key for f in T.GNSS_RECORD_FIELDS[kind]]  # gps_time ({week, tow_ns}) for gps_time_ns
         assert len(keys) == len(set(keys)), kind
         given = set(keys) | extras.get(kind, set())
         for spec in specs:

@@ -274,13 +274,26 @@ def _columns(rows: Sequence[Mapping[str, Any]], topic: str) -> dict[str, npt.NDA
             keys.update(dict.fromkeys(r))
     spec, _params = _spec(topic)
     props: Mapping[str, Any] = spec.schema.document.get("properties", {}) if spec is not None else {}
+    # integer-ns times written as two integers ({week, tow_ns}, {sec, nsec}) or, in older files, as one
+    # plain integer: the same int64 ns column either way (rig.topics.NsField)
+    ns_by_key = {k: f for f in (spec.schema.ns_fields if spec is not None else ()) for k in (f.key, f.column)}
     if rows:
         # a field left out while unknown (rig.topics.encode_record) is still a column, all unknown
         for k, sub in props.items():
-            if k not in keys and sub.get("type") in ("number", "integer"):
+            if k not in keys and (sub.get("type") in ("number", "integer") or k in ns_by_key):
                 keys[k] = None
     cols: dict[str, npt.NDArray[Any]] = {}
     for k in keys:
+        ns = ns_by_key.get(k)
+        if ns is not None:
+            if ns.column not in cols:
+                ints = [ns.read(r) for r in rows]
+                if any(v is None for v in ints):
+                    cols[ns.column] = np.asarray([np.nan if v is None else float(v) for v in ints], dtype=np.float64)
+                    log.debug("%s: integer column %s has nulls; stored as float", topic, ns.column)
+                else:
+                    cols[ns.column] = np.asarray(ints, dtype=np.int64)
+            continue
         vals = [r.get(k) for r in rows]
         declared = props.get(k, {}).get("type")
         sample = next((v for v in vals if v is not None), None)
@@ -417,7 +430,10 @@ class Session:
             raise SessionFileError(f"{self.path}: topic {topic}: undecodable JSON message ({exc})") from exc
         order = np.argsort(log_t, kind="stable")
         rows = [rows[i] for i in order.tolist()]
-        cols = _columns(rows, topic)
+        try:
+            cols = _columns(rows, topic)
+        except ValueError as exc:
+            raise SessionFileError(f"{self.path}: topic {topic}: {exc}") from exc
         v = valid(cols) if valid is not None and rows else np.ones(len(rows), dtype=bool)
         tbl = Table(topic, log_t[order], pub_t[order], cols, np.asarray(v, dtype=bool))
         self._cache[key] = tbl

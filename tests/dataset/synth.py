@@ -123,22 +123,23 @@ def write_session(out: Path, name: str = "synth", duration_s: float = 20.0, roll
             host_vel = host_pos + tx_ns(BESTVELB_BYTES)
             host_time = host_vel + tx_ns(TIMEB_BYTES)
             for k in range(g.size):
-                pos = {"gps_time_ns": int(g[k]), "time_status": "FINESTEERING", "sol_status": str(status[k]),
+                gt = T.GPS_TIME.to_json(int(g[k]))  # {week, tow_ns}, as the recorder writes it
+                pos = {"gps_time": gt, "time_status": "FINESTEERING", "sol_status": str(status[k]),
                        "pos_type": "NARROW_INT", "lat_deg": float(lat[k]), "lon_deg": 9.18 + r_i * 1e-5,
                        "height_msl_m": 300.0, "lat_std_m": 0.01, "lon_std_m": 0.01, "height_std_m": 0.02,
                        "diff_age_s": None}
                 src.put(T.gnss_bestpos(recv), int(utc(g[k])), int(host_pos[k]), pos)
-                vel = {"gps_time_ns": int(g[k]), "sol_status": "SOL_COMPUTED", "vel_type": "DOPPLER_VELOCITY",
+                vel = {"gps_time": gt, "sol_status": "SOL_COMPUTED", "vel_type": "DOPPLER_VELOCITY",
                        "latency_s": 0.0, "hor_speed_mps": 20.0, "track_over_ground_deg": 90.0, "vert_speed_mps": 0.0}
                 src.put(T.gnss_bestvel(recv), int(utc(g[k])), int(host_vel[k]), vel)
                 if k % 20 == 0:
-                    tm = {"gps_time_ns": int(g[k]), "clock_status": "VALID", "utc_offset_s": -float(LEAP),
+                    tm = {"gps_time": gt, "clock_status": "VALID", "utc_offset_s": -float(LEAP),
                           "leap_seconds": LEAP, "utc_status": "VALID"}
                     src.put(T.gnss_time(recv), int(utc(g[k])), int(host_time[k]), tm)
             if recv == "rover_a":
                 for p in pulses.tolist():
                     src.put(T.gnss_marktime("rover_a"), int(utc(p)), int(host_of_gps(np.asarray([p]))[0]) + 30_000_000,
-                            {"gps_time_ns": p, "clock_status": "VALID", "event_input": "MARK1"})
+                            {"gps_time": T.GPS_TIME.to_json(p), "clock_status": "VALID", "event_input": "MARK1"})
             gnss[recv] = {"gps": g, "lat": lat, "valid": status == "SOL_COMPUTED"}
         # --- CAN at 100 Hz, interface clock −30 ppm vs host, in blocks of 50
         can_src = rec.source("can0")

@@ -43,7 +43,8 @@ def test_mixed_session_reads_back_exactly_with_mcap_reader(tmp_path: Path) -> No
             assert gnss.put(T.gnss_raw("rover_a"), t, t + 1000, raw)
             expected.append((T.gnss_raw("rover_a"), t, t + 1000, raw))
             pos = {
-                "gps_time_ns": 1_400_000_000_000_000_000 + i, "sol_status": "SOL_COMPUTED", "pos_type": "NARROW_INT",
+                "gps_time": T.GPS_TIME.to_json(1_400_000_000_000_000_000 + i), "sol_status": "SOL_COMPUTED",
+                "pos_type": "NARROW_INT",
                 "lat_deg": 48.1 + i * 1e-6, "lon_deg": 9.2, "height_msl_m": 300.0, "lat_std_m": 0.01,
                 "lon_std_m": 0.01, "height_std_m": 0.02,
             }

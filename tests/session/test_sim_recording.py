@@ -21,6 +21,7 @@ from drivers.analog import AnalogChannelSpec
 from drivers.daq import find_edges
 from drivers.optical import OpticalSensorSpec
 from rig.dataset import align
+from rig.dataset import load_session as load_recording
 from sim_devices.vehicle.geodesy import point_geodetic
 from sim_devices.vsc_ecu import VscEcuConfig
 from tests.session.recording import Recorded, daq_true_utc, record, sensor_view
@@ -258,6 +259,50 @@ def test_every_json_message_validates_with_a_standard_json_schema_validator(run:
         assert failures == [], failures[:5]
         checked += n
     assert checked > 1000
+
+
+def test_every_json_integer_is_exact_in_a_javascript_reader(run: Recorded) -> None:
+    """A JavaScript reader (Foxglove) reads a JSON number as a double, exact only below 2^53: no integer of
+    any JSON message reaches it (GPS times as {week, tow_ns}, CAN interface times and event intervals as
+    foxglove.Time, time-base offsets as foxglove.Duration, larger event details as decimal strings), and the
+    dataset still gives the int64 ns columns, exact (decision record 0005)."""
+    big: dict[str, int] = {}
+    seen: set[str] = set()
+
+    def walk(v: Any, where: str) -> None:
+        if isinstance(v, bool):
+            return
+        if isinstance(v, int):
+            seen.add(where)
+            if abs(v) >= T.JS_EXACT_INT:
+                big[where] = big.get(where, 0) + 1
+        elif isinstance(v, dict):
+            for k, sub in v.items():
+                walk(sub, f"{where}.{k}")
+        elif isinstance(v, list):
+            for sub in v:
+                walk(sub, f"{where}[]")
+
+    for part in sorted(run.rec.summary.recording.parts):
+        with Path(part).open("rb") as fh:
+            for _s, channel, message in make_reader(fh).iter_messages():
+                if channel.message_encoding == T.JSON_ENCODING:
+                    walk(json.loads(message.data), channel.topic)
+    assert big == {}, big
+    assert {"/gnss/rover_a/bestpos.gps_time.week", "/gnss/rover_a/bestpos.gps_time.tow_ns",
+            "/can/vsc/roles.device_time.sec", "/rig/timebase.offset.sec"} <= seen
+    # read back exactly: GNSS GPS times against the raw port bytes, CAN interface times against the raw frames
+    ds = load_recording(run.ds.path, topics=[T.gnss_raw("rover_a"), T.gnss_bestpos("rover_a"),
+                                             T.gnss_time("rover_a")])
+    g, raw = ds.gnss("rover_a"), ds.gnss("rover_a", source="raw")
+    assert g.bestpos["gps_time_ns"].dtype == np.int64 and len(g.bestpos) > 100
+    assert np.array_equal(g.bestpos["gps_time_ns"], raw.bestpos["gps_time_ns"])
+    roles = [r for part in sorted(run.rec.summary.recording.parts) for r in _messages(Path(part), T.can_roles("vsc"))]
+    dev = [T.CAN_DEVICE_TIME.read(r) for r in roles]
+    frames = run.ds.can_frames("vsc").records["device_ts_ns"]
+    assert len(dev) > 100 and set(dev) <= set(frames.tolist())
+    offsets = run.ds.timebase_records()["offset_ns"]
+    assert np.nanmax(np.abs(offsets)) > T.JS_EXACT_INT  # GPS − Unix epochs: now exact in the file
 
 
 def test_optical_samples_held_at_one_log_time_do_not_refuse_the_session(run: Recorded, tmp_path: Path) -> None:
