@@ -246,6 +246,15 @@ _WAKE_NOT_LT = _wake_on(rb"[^<]")  # after an abbreviated log's line: anything b
 _WAKE_SYNC = _wake_on(_SYNC.pattern)  # garbage held: only a sync byte can start a frame
 _WAKE_AFTER_FRAME = _wake_on(rb"[\]\n$\xd3]")  # see _AFTER_FRAME_LEN
 
+_ALL_BYTES = frozenset(bytes([c]) for c in range(256))
+#: The 1-byte chunks that :meth:`Framer.feed` may hold without a look, per wake set (None: any byte).
+_QUIET: dict[frozenset[bytes] | None, frozenset[bytes]] = {None: _ALL_BYTES} | {
+    wake[0]: _ALL_BYTES - wake[0]
+    for wake in (_WAKE_TEXT_END, _WAKE_LINE_END, _WAKE_NOT_HEX, _WAKE_NOT_44, _WAKE_NOT_LT, _WAKE_SYNC,
+                 _WAKE_AFTER_FRAME)
+}
+_QUIET_AFTER_FRAME = _QUIET[_WAKE_AFTER_FRAME[0]]
+
 
 def _rtcm_number_plausible(number: int) -> bool:
     # Standard messages 1001-1300s and proprietary 4001-4095; anything else is not RTCM3 data.
@@ -286,6 +295,12 @@ class Framer:
         self._wake_set: frozenset[bytes] | None
         self._wake_search: _WakeSearch
         self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
+        # 1-byte chunks fed since the bytes were last looked at: while they are quiet bytes (not of
+        # _wake_set) and fewer than _room (so _acc plus them stays below _wake_len), feed() only
+        # appends them here, a cheaper store than growing _acc. _settle() sets both after a look.
+        self._held: list[bytes | bytearray | memoryview] = []  # only immutable ones: see feed()
+        self._room = _AFTER_FRAME_LEN - 1
+        self._quiet = _QUIET[self._wake_set]
         self._abbrev_resume: tuple[int, int, int] | None = None  # stream offsets (start, next line, end)
         self._base = 0  # stream offset of self._acc[0]
         self._span_end = 0  # stream offset where the current rejected span ends
@@ -308,24 +323,72 @@ class Framer:
     def stats(self) -> FramerStats:
         """Running counts (the live object: take :meth:`FramerStats.copy` for a snapshot)."""
         stats = self._stats
-        stats.bytes_in = self._base + len(self._acc)  # kept here, not per feed: feed(1 byte) stays cheap
+        # kept here, not per feed: feed(1 byte) stays cheap
+        stats.bytes_in = self._base + len(self._acc) + len(self._held)
         return stats
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         """Add bytes; return the frames completed by them (in stream order)."""
-        acc = self._acc
-        acc += data
-        if len(acc) < self._wake_len:
-            # No frame can complete, or be rejected, before the wake condition: keep the bytes only.
-            wake = self._wake_set
-            if wake is None:
-                return []
-            if len(data) == 1 and type(data) is bytes:  # a serial port's typical read: a hash lookup
-                if data not in wake:
+        # A serial port's typical read, one byte that can change no verdict yet, is only held: one
+        # set lookup, one comparison, one list append. Other chunks (longer ones are never in the
+        # set; a bytearray or writable memoryview is unhashable) take the general path, which copies.
+        try:
+            if data in self._quiet:
+                held = self._held
+                if len(held) < self._room:
+                    held.append(data)
                     return []
-            elif self._wake_search(data) is None:
-                return []
-        return self._scan(final=False)
+        except (TypeError, ValueError):
+            pass
+        return self._feed(data)
+
+    def _feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
+        acc = self._acc
+        held = self._held
+        if held:
+            acc += b"".join(held)
+            held.clear()
+        acc += data
+        n = len(acc)
+        if n < self._wake_len and (self._wake_set is None or self._wake_search(data) is None):
+            # No frame can complete, or be rejected, before the wake condition: keep the bytes only.
+            self._room = self._wake_len - n - 1
+            return []
+        if n >= 10 and acc[0] == 0xAA and acc.startswith(_LONG_SYNC_28):
+            # A standard long binary log at the start: the usual wake-ups when frames are fed in small
+            # pieces (its header, then its last byte), taken here without a scan. The same decisions
+            # as the scan's inline path.
+            total = 32 + (acc[8] | acc[9] << 8)
+            if total <= self.max_frame_len:
+                if n < total:  # wait for the rest (as _parse_binary would say)
+                    self._wake_len = total
+                    self._wake_set = None
+                    self._room = total - n - 1
+                    self._quiet = _ALL_BYTES
+                    return []
+                if n == total and self._decode_logs:
+                    frame = self._whole_binary(acc)
+                    if frame is not None:
+                        self._room = _AFTER_FRAME_LEN - 1
+                        self._quiet = _QUIET_AFTER_FRAME
+                        return [frame]
+        frames = self._scan(final=False)
+        self._settle()
+        return frames
+
+    def _take_held(self) -> bytearray:
+        """Move the held 1-byte chunks into the buffer; return the buffer."""
+        acc = self._acc
+        held = self._held
+        if held:
+            acc += b"".join(held)
+            held.clear()
+        return acc
+
+    def _settle(self) -> None:
+        """After a look at the bytes: what feed() may hold before the next look."""
+        self._room = self._wake_len - len(self._acc) - 1
+        self._quiet = _QUIET[self._wake_set]
 
     def flush(self) -> list[Frame]:
         """Complete a pending abbreviated-ASCII log without waiting for the next byte.
@@ -333,44 +396,35 @@ class Framer:
         An abbreviated log has no end marker; call this after a read timeout. Every other frame
         still waits for its bytes.
         """
+        self._take_held()
         self._flush = True
         try:
             return self._scan(final=False)
         finally:
             self._flush = False
+            self._settle()
 
     def finish(self) -> list[Frame]:
         """End of stream: complete what can be completed, count the rest as truncated or garbage."""
+        self._take_held()
         frames = self._scan(final=True)
         self._acc.clear()
         self._wake_len = _AFTER_FRAME_LEN
         self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
+        self._settle()
         return frames
 
     @property
     def pending_bytes(self) -> int:
         """Bytes held and not yet classified: the start of an incomplete frame, or bytes waiting for
         enough of them to decide anything (a few after a frame, up to 512 of garbage)."""
-        return len(self._acc)
+        return len(self._acc) + len(self._held)
 
     # --- scanning -----------------------------------------------------------------------
 
     def _scan(self, final: bool) -> list[Frame]:
         acc = self._acc
         n = len(acc)
-        if n >= 10 and acc[0] == 0xAA and not final and acc.startswith(_LONG_SYNC_28):
-            # A standard long binary log at the start: the usual wake-ups when frames are fed in small
-            # pieces (its header, then its last byte). The same decisions as the inline path below.
-            total = 32 + (acc[8] | acc[9] << 8)
-            if total <= self.max_frame_len:
-                if n < total:  # wait for the rest (as _parse_binary would say)
-                    self._wake_len = total
-                    self._wake_set = None
-                    return []
-                if n == total and self._decode_logs:
-                    frame = self._whole_binary(acc)
-                    if frame is not None:
-                        return [frame]
         buf = bytes(acc)
         self._wake_set = None  # a parser that stops at a NEED may set another
         pos = 0
@@ -492,7 +546,7 @@ class Framer:
         return out
 
     def _whole_binary(self, acc: bytearray) -> Frame | None:
-        """The held bytes as one standard long binary log with a good CRC and a generated decoder,
+        """The buffer as one standard long binary log with a good CRC and a generated decoder,
         taken like the inline path of :meth:`_scan` takes it; None (nothing changed) otherwise."""
         raw = bytes(acc)
         if _crc32(raw, 0xFFFFFFFF) != 0xFFFFFFFF:

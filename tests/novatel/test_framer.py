@@ -562,14 +562,16 @@ def test_short_frames_come_out_of_the_byte_that_completes_them_in_every_waiting_
 
 
 def _count_scans(framer: Framer) -> list[int]:
+    """Count the looks at the held bytes: the general path of ``feed`` (a scan, or the check of a
+    binary log's header or last byte), taken when a fed byte could change a verdict."""
     calls = [0]
-    scan = framer._scan
+    look = framer._feed
 
-    def counted(final: bool) -> list[Frame]:
+    def counted(data: bytes | bytearray | memoryview) -> list[Frame]:
         calls[0] += 1
-        return scan(final)
+        return look(data)
 
-    framer._scan = counted  # type: ignore[method-assign]
+    framer._feed = counted  # type: ignore[method-assign]
     return calls
 
 
@@ -638,3 +640,52 @@ def test_a_framer_fed_after_finish_starts_afresh() -> None:
     for i, byte in enumerate(b"[A]"):
         got += [(i, f.kind) for f in framer.feed(bytes([byte]))]
     assert got == [(2, FrameKind.PROMPT)]
+
+
+def test_held_bytes_count_as_pending_and_as_bytes_in() -> None:
+    """1-byte chunks held without a look are still the framer's bytes: pending and counted as fed."""
+    log = _binary_log(0)
+    framer = Framer()
+    for i in range(50):
+        assert framer.feed(log[i : i + 1]) == []
+    assert framer.pending_bytes == 50
+    assert framer.stats.bytes_in == 50
+    assert framer.feed(bytearray(log[50:60])) == []  # a longer chunk joins the held bytes in order
+    assert framer.pending_bytes == 60
+    frames = []
+    for i in range(60, len(log)):
+        frames += framer.feed(log[i : i + 1])
+        assert framer.stats.bytes_in == i + 1
+    assert signature(frames) == [(FrameKind.NOVATEL_BINARY, log)]
+    assert framer.pending_bytes == 0
+    assert framer.stats.bytes_in == framer.stats.bytes_in_frames == len(log)
+
+
+def test_a_reused_read_buffer_changed_after_feed_changes_nothing_held() -> None:
+    """A port read into one reusable buffer (``readinto``): the framer keeps copies of mutable chunks."""
+    stream = b"".join(wire for wire, _ in TINY) + b"".join(wire for _, wire, _ in MIXED)
+    expected = run([stream])
+    for view in (False, True):
+        framer = Framer()
+        buffer = bytearray(1)
+        chunk = memoryview(buffer) if view else buffer
+        frames = []
+        for byte in stream:
+            buffer[0] = byte
+            frames += framer.feed(chunk)
+            buffer[0] = 0xAA  # the next read overwrites it
+        frames += framer.finish()
+        assert signature(frames) == signature(expected[0])
+        assert framer.stats.to_dict() == expected[1].to_dict()
+
+
+def test_a_read_only_memoryview_byte_may_be_held() -> None:
+    """A memoryview of bytes is immutable and hashable: held like the bytes it views, same frames."""
+    stream = b"".join(wire for wire, _ in TINY)
+    data = memoryview(stream)
+    framer = Framer()
+    frames = []
+    for i in range(len(stream)):
+        frames += framer.feed(data[i : i + 1])
+    frames += framer.finish()
+    assert signature(frames) == signature(run([stream])[0])
