@@ -10,15 +10,20 @@ Two streams:
 - ``receiver``: what a rover port carries: binary BESTPOS/BESTVEL at 20 Hz (most bytes), ASCII
   BESTVEL, NMEA GGA, RTCM3 1005, abbreviated-ASCII logs, ``<OK`` responses and port prompts.
 - ``worst``: the shapes that used to be quadratic: abbreviated logs of 400 short continuation
-  lines, ASCII candidates that run 20 000 bytes without their ``*``, long binary logs.
+  lines, ASCII candidates that run 20 000 bytes without their ``*``, a long binary log, a long
+  binary log whose CRC fails (the search resumes inside it, among bytes of every value) and a run
+  of bytes that start no frame.
 
-CPU time of this thread (the machine is shared). Each round runs every chunking in turn (so a
-change of load hits them all alike); a figure is the median over ``--rounds`` rounds, the ratio is
-the median of the per-round ratios to that round's one call, and the ratio of the quietest rounds
-(minimum over minimum) is shown beside it. The frames and the counts of every chunking are checked
-to equal the one-call result. Two floors show what the per-call Python cost alone comes to: a
-``feed`` that does nothing, and one that only appends the chunk to a bytearray (any framer must
-keep the bytes of a frame it has not finished), both through the same loop. Run::
+CPU time of the process (``time.process_time``; the machine is shared). Each round runs every
+chunking in turn (so a change of load hits them all alike); a time is the median over ``--rounds``
+rounds, a ratio is taken per round against that round's one call and shown as min/median/max over
+the rounds, with the ratio of the quietest rounds (minimum time over minimum time) beside it. The
+frames and the counts of every chunking are checked to equal the one-call result. Two floors show
+what the per-call Python cost alone comes to: a ``feed`` that does nothing, and one that only
+appends the chunk to a bytearray (any framer must keep the bytes of a frame it has not finished),
+both through the same loop. When the one call costs less than these floors' 3x (the ``worst``
+stream: most of its bytes are passed over by one C-level search or CRC in one call), no feed
+written in Python meets the goal on it; the floors say by how much. Run::
 
     python benchmarks/bench_framer_chunking.py [--mb 1] [--rounds 5]
 """
@@ -30,7 +35,6 @@ import gc
 import statistics
 import struct
 import time
-import zlib
 
 from drivers.novatel import (
     BestPos,
@@ -48,7 +52,7 @@ from drivers.novatel import (
     make_header,
     xor_checksum,
 )
-from drivers.novatel.crc import crc24q
+from drivers.novatel.crc import crc24q, novatel_crc32
 
 GOAL_RATIO = 3.0
 
@@ -82,7 +86,7 @@ def _long_binary(body_len: int) -> bytes:
     header = struct.pack("<3BBHbBHHBBHlLHH", 0xAA, 0x44, 0x12, 28, 9999, 0, 32, body_len, 0, 0, 180, 2300, 345600000,
                          0, 0, 0)
     frame = header + bytes(range(256)) * (body_len // 256) + bytes(body_len % 256)
-    return frame + struct.pack("<I", zlib.crc32(frame) & 0xFFFFFFFF)
+    return frame + struct.pack("<I", novatel_crc32(frame))
 
 
 def receiver_stream(size: int) -> bytes:
@@ -115,6 +119,7 @@ def worst_stream(size: int) -> bytes:
         abbrev_header + b"<     1\r\n" * 400,
         b"#BESTPOSA,COM1," + b"x" * 20000 + b"\r\n",
         _long_binary(16000),
+        _long_binary(8000)[:-1] + b"\x00",  # its CRC fails
         b"\x00" * 2000,
     ]
     unit = b"".join(pieces)
@@ -147,11 +152,11 @@ def _time(framer: Framer | _NoFramer, chunks: list[bytes]) -> tuple[float, list[
     feed = framer.feed
     frames: list[object] = []
     gc.collect()  # the previous run's garbage is not this run's cost
-    t0 = time.thread_time()
+    t0 = time.process_time()
     for chunk in chunks:
         frames += feed(chunk)
     frames += framer.finish()
-    return time.thread_time() - t0, frames
+    return time.process_time() - t0, frames
 
 
 def run(chunks: list[bytes]) -> tuple[float, list[tuple[object, bytes]], dict[str, object]]:
@@ -183,25 +188,29 @@ def measure(name: str, data: bytes, rounds: int) -> float:
     assert reference is not None
     one = times[len(data)]
 
-    def ratio(key: object) -> tuple[float, float]:
-        paired = statistics.median(t / o for t, o in zip(times[key], one, strict=True))
-        return paired, min(times[key]) / min(one)
+    def ratio(key: object) -> tuple[list[float], float]:
+        """Per-round ratios to the one call, sorted; the quietest rounds' ratio."""
+        return sorted(t / o for t, o in zip(times[key], one, strict=True)), min(times[key]) / min(one)
 
-    print(f"{name}: {len(data) / 1e6:.2f} MB, {len(reference[0])} frames, {rounds} rounds")
+    def spread(ratios: list[float]) -> str:
+        return f"{ratios[0]:5.2f} / {statistics.median(ratios):5.2f} / {ratios[-1]:5.2f}x"
+
+    print(f"{name}: {len(data) / 1e6:.2f} MB, {len(reference[0])} frames, {rounds} rounds;"
+          " ratios to one call: min / median / max over rounds")
     for chunk in sizes:
         t = statistics.median(times[chunk])
         label = "one call" if chunk == len(data) else f"{chunk:>3} B chunks"
-        paired, quiet = ratio(chunk)
-        print(f"  {label:>13}: {t:7.3f} s CPU  ({len(data) / t / 1e6:6.2f} MB/s)  {paired:5.2f}x one call"
+        ratios, quiet = ratio(chunk)
+        print(f"  {label:>13}: {t:7.3f} s CPU  ({len(data) / t / 1e6:6.2f} MB/s)  {spread(ratios)}"
               f"  (quietest rounds {quiet:5.2f}x)")
     for key, what in (("noop", "a no-op feed per byte"), ("append", "a feed that only appends the byte")):
-        paired, quiet = ratio(key)
-        print(f"  floor, {what}: {statistics.median(times[key]):.3f} s CPU = {paired:.2f}x one call"
+        ratios, quiet = ratio(key)
+        print(f"  floor, {what}: {statistics.median(times[key]):.3f} s CPU = {spread(ratios)}"
               f"  (quietest rounds {quiet:.2f}x)")
     gc.unfreeze()
-    paired, _ = ratio(1)
-    print(f"  goal: 1-byte feed <= {GOAL_RATIO:.0f}x one call: {'met' if paired <= GOAL_RATIO else 'NOT met'}")
-    return paired
+    median = statistics.median(ratio(1)[0])
+    print(f"  goal: 1-byte feed <= {GOAL_RATIO:.0f}x one call (median): {'met' if median <= GOAL_RATIO else 'NOT met'}")
+    return median
 
 
 def main() -> None:
