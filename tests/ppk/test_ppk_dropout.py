@@ -1,14 +1,17 @@
 """Acceptance (issue 18 §1): a correction dropout of more than 60 s around a double lane change.
 
 One simulated session is recorded through the real recording path (base and two rovers with the
-correction relay, the VSC ECU, the DAQ) with the rovers logging RANGECMPB at 20 Hz and GPSEPHEMB; the
+correction relay, the VSC ECU, the DAQ) with the rovers logging RANGECMPB at 20 Hz, GPSEPHEMB and
+GLOEPHEMERISB; the
 rovers' correction ports are unplugged (the radio link drops, the base's RTCM is still recorded) from
 before the lane change until well after it. Then:
 
 - live RTK is not fixed and the live reference is invalid during the dropout;
 - ``rig ppk`` fixes every rover epoch with RTKLIB and writes ``<session>.ppk.parquet``;
 - the reference (``rig validate``'s) then covers the dropout with PPK positions, with β RMS vs the
-  simulator's truth ≤ 0.05° and coverage ≥ 95 %, and says which solution each epoch took.
+  simulator's truth ≤ 0.05° and coverage ≥ 95 %, and says which solution each epoch took;
+- GPS + GLONASS solves with more satellites than GPS alone on the same session, and fixes and
+  scores β at least as well.
 """
 
 from __future__ import annotations
@@ -41,10 +44,10 @@ FAST_RTK = RtkParams(max_correction_age_s=5.0, float_hold_s=10.0, psrdiff_timeou
 ROVER_A_LOGS = [{"name": "BESTPOSB", "period_s": 0.05}, {"name": "BESTVELB", "period_s": 0.05},
                 {"name": "TIMEB", "period_s": 1.0}, {"name": "MARKPOSB", "trigger": "onnew"},
                 {"name": "MARKTIMEB", "trigger": "onnew"}, {"name": "RANGECMPB", "period_s": 0.05},
-                {"name": "GPSEPHEMB", "trigger": "onchanged"}]
+                {"name": "GPSEPHEMB", "trigger": "onchanged"}, {"name": "GLOEPHEMERISB", "trigger": "onchanged"}]
 ROVER_B_LOGS = [{"name": "BESTPOSB", "period_s": 0.05}, {"name": "BESTVELB", "period_s": 0.05},
                 {"name": "TIMEB", "period_s": 1.0}, {"name": "RANGECMPB", "period_s": 0.05},
-                {"name": "GPSEPHEMB", "trigger": "onchanged"}]
+                {"name": "GPSEPHEMB", "trigger": "onchanged"}, {"name": "GLOEPHEMERISB", "trigger": "onchanged"}]
 ROVERS = ("rover_a", "rover_b")
 UNPLUG_S = 6.0
 """Truth time at which the correction link drops."""
@@ -202,3 +205,36 @@ def test_validate_report_states_the_sources(dropout: Dropout, tmp_path: Path) ->
     sv = validate_session(dropout.ppk)
     files = write_validation_report(sv, tmp_path / "report")
     assert html.escape(sv.reference.source_summary()) in files.html.read_text(encoding="utf-8")
+
+
+def test_glonass_adds_satellites_and_is_at_least_as_good_as_gps_only(dropout: Dropout, tmp_path: Path) -> None:
+    """The same session post-processed with GPS only (a copy, so its side file is its own): GPS + GLONASS has more
+    satellites, fixes at least as many epochs, and its β RMS over the dropout is no worse (within 0.002°)."""
+    from rig.ppk import run_ppk
+
+    for part in dropout.path.parent.glob(dropout.path.name + ".*"):
+        if not part.name.endswith(".ppk.parquet"):
+            shutil.copy(part, tmp_path / part.name)
+    gps_path = tmp_path / dropout.path.name
+    run = run_ppk(gps_path, systems=("G",))
+    gps = load_inputs(gps_path, optical=False)
+    both_sols, gps_sols = read_ppk_file(ppk_file_path(dropout.path)), read_ppk_file(run.out)
+    rms_both, cov_both, _, _ = _score(dropout.ppk, validate_session(dropout.ppk).reference, dropout.window_s)
+    rms_gps, cov_gps, _, _ = _score(gps, validate_session(gps).reference, dropout.window_s)
+    import pyarrow.parquet as pq
+
+    def ns_median(path: Path, rover: str) -> float:
+        t = pq.read_table(path, columns=["rover", "ns"]).to_pandas()
+        return float(t.loc[t["rover"] == rover, "ns"].median())
+
+    lines = []
+    for r in ROVERS:
+        b, g = both_sols[r], gps_sols[r]
+        ns_b, ns_g = ns_median(ppk_file_path(dropout.path), r), ns_median(run.out, r)
+        lines.append(f"{r}: fixed {b.fixed.mean():.3f}, median {ns_b:g} satellites (GPS only {g.fixed.mean():.3f}, "
+                     f"{ns_g:g})")
+        assert ns_b >= ns_g + 4, r
+        assert b.fixed.sum() >= g.fixed.sum(), r
+    print(f"\n  β RMS over the dropout: GPS+GLONASS {rms_both:.4f}° (coverage {cov_both:.3f}), GPS only {rms_gps:.4f}° "
+          f"(coverage {cov_gps:.3f}); " + "; ".join(lines))
+    assert rms_both <= rms_gps + 0.002 and cov_both >= cov_gps - 0.005
