@@ -22,9 +22,11 @@ same states (forward bit for bit, backward to the RK4 truncation: < 0.01 mm over
 
 Each day's integration restarts from the Keplerian state at 23:30:18 GPS time, an interval bound:
 the orbits jump there (up to kilometres), at the instant the broadcast ephemeris changes, so
-positions from the ephemerides stay consistent with the observations on both sides of it; only
-the Doppler of the epoch that straddles it is off. A day costs at most 1 470 RK4 steps of all
-GLONASS satellites at once (≈ 0.1-0.4 s), once per process (the truth is shared).
+positions from the ephemerides stay consistent with the observations on both sides of it (a
+signal sent before it comes from the old day's orbit even when received after it, as a receiver
+picks the old interval's ephemeris for it); only the Doppler of the epoch that straddles it is off
+(up to ~56 km jumps: a day of J2 drift from the circular orbit). A day costs at most 1 470 RK4
+steps of all GLONASS satellites at once (≈ 0.1 s), once per process (the truth is shared).
 
 The lunisolar accelerations are deterministic, of the magnitude of the real ones (≤ 3e-6 m/s²)
 and on the broadcast resolution (2⁻³⁰ km/s²), not computed from Sun and Moon positions.
@@ -166,12 +168,26 @@ class GlonassTruth:
         return (t_gps_ns - _SWITCH_S * 1_000_000_000) // (_DAY_S * 1_000_000_000)
 
     def states_ns(self, t_gps_ns: int, dt_s: FloatArray) -> FloatArray:
-        """States (n, 6) at ``t_gps_ns`` + ``dt_s`` (one offset per satellite, |dt| < 60 s) on the truth of the day
-        ``t_gps_ns`` belongs to."""
+        """States (n, 6) at ``t_gps_ns`` + ``dt_s`` (one offset per satellite, |dt| < 60 s), each on the truth of the
+        day its own time belongs to (a signal sent just before the daily switch comes from the old day's orbit, as
+        the ephemeris a receiver picks for it describes)."""
+        dt = np.asarray(dt_s, dtype=np.float64)
         day = self.day_of_ns(t_gps_ns)
         d = self._day(day)
-        rel = (t_gps_ns - d.start_s * 1_000_000_000) / 1e9 + np.asarray(dt_s, dtype=np.float64)
-        return d.states(rel).T
+        rel = (t_gps_ns - d.start_s * 1_000_000_000) / 1e9 + dt
+        switch = float(_SWITCH_S - _START_S)  # the day's truth takes over this far into its integration
+        before, after = rel < switch, rel >= switch + _DAY_S
+        if not (before.any() or after.any()):
+            return d.states(rel).T
+        out = np.empty((len(self.slots), 6))
+        here = ~(before | after)
+        if here.any():
+            out[here] = d.states(rel).T[here]
+        for mask, other in ((before, day - 1), (after, day + 1)):
+            if mask.any():
+                o = self._day(other)
+                out[mask] = o.states(rel + (d.start_s - o.start_s)).T[mask]
+        return out
 
     def acc(self, t_s: float) -> FloatArray:
         """Lunisolar accelerations (n, 3) in force at GPS second ``t_s``."""

@@ -33,8 +33,9 @@ OMEGA_E = 7.2921151467e-5
 START_NS = 2400 * NS_PER_WEEK + 345600 * NS_PER_S
 
 
-def _icd_orbit(eph: GloEphemeris, t_gps_s: float) -> tuple[tuple[float, float, float], float]:
-    """ECEF position (m) and clock offset (s) at GPS second ``t_gps_s``: ICD A.3.1.2, RK4, 60 s steps."""
+def _icd_orbit(eph: GloEphemeris, t_gps: float | int) -> tuple[tuple[float, float, float], float]:
+    """ECEF position (m) and clock offset (s) at GPS time ``t_gps`` (int: ns, exact; float: s) since the GPS epoch:
+    ICD A.3.1.2, RK4, 60 s steps."""
     mu, ae, j2, w = 398_600.4418e9, 6_378_136.0, 1_082_625.75e-9, 7.2921151467e-5
     ax, ay, az = eph.lunisolar_mps2()
 
@@ -47,7 +48,9 @@ def _icd_orbit(eph: GloEphemeris, t_gps_s: float) -> tuple[tuple[float, float, f
                 (-mu / r**3 - k * (3.0 - 5.0 * z * z / (r * r))) * z + az]
 
     s = [*eph.position_m(), *eph.velocity_mps()]
-    dt = t_gps_s - eph.tb_gps_s
+    tb_ns = round(eph.tb_gps_s) * NS_PER_S
+    dt = (t_gps - tb_ns) / NS_PER_S if isinstance(t_gps, int) else t_gps - eph.tb_gps_s
+    clock_dt = dt
     while abs(dt) > 1e-9:
         h = dt if abs(dt) < 60.0 else math.copysign(60.0, dt)
         k1 = f(s)
@@ -56,7 +59,7 @@ def _icd_orbit(eph: GloEphemeris, t_gps_s: float) -> tuple[tuple[float, float, f
         k4 = f([a + h * b for a, b in zip(s, k3, strict=True)])
         s = [a + h / 6 * (b + 2 * c + 2 * d + e) for a, b, c, d, e in zip(s, k1, k2, k3, k4, strict=True)]
         dt -= h
-    return (s[0], s[1], s[2]), -eph.tau_n_s + eph.gamma_n * (t_gps_s - eph.tb_gps_s)
+    return (s[0], s[1], s[2]), -eph.tau_n_s + eph.gamma_n * clock_dt
 
 
 def _wire(eph: GloEphemeris) -> GloEphemeris:
@@ -83,7 +86,7 @@ def test_broadcast_ephemeris_is_the_simulated_orbit(t_ns: int) -> None:
         tb_ns = round(eph.tb_gps_s) * NS_PER_S
         for dt_s in (-899.5, -123.25, 0.0, 456.5, 899.0):
             t = tb_ns + round(dt_s * NS_PER_S)
-            pos, clk = _icd_orbit(eph, t / NS_PER_S)
+            pos, clk = _icd_orbit(eph, t)
             truth = const.ecef_at(t)[const.index(sat)]
             worst = max(worst, float(np.linalg.norm(np.array(pos) - truth)))
             assert clk == pytest.approx(const.satellite_clock_s(sat, t), abs=1e-15)
@@ -171,3 +174,27 @@ def test_rover_sends_gloephemerisb_on_change(truth: GroundTruth, timebase: SimTi
             assert e == glonass_ephemeris(rover.constellation, sat, t_ns)
     finally:
         rover.stop()
+
+
+def test_daily_restart_of_the_truth_stays_consistent_with_the_ephemerides() -> None:
+    """The truth restarts from the circular orbit once a day at 23:30:18 GPS, an ephemeris interval bound: a signal
+    sent just before it comes from the orbit the old interval's ephemeris describes, one sent after it from the new
+    one, even within one receiver epoch (light time reaches back across the bound)."""
+    const = Constellation()
+    switch_ns = START_NS + (86400 - 1782) * NS_PER_S
+    sats = _glonass(const)
+    idx = [const.index(s) for s in sats]
+    t_rx = switch_ns + 30_000_000
+    dt = np.array([-0.07 if i % 2 else 0.0 for i in range(len(const.satellites))])
+    pos = const.ecef_at(t_rx, dt)
+    jumps = []
+    for sat, i in zip(sats, idx, strict=True):
+        t_tx_ns = t_rx + round(dt[i] * NS_PER_S)
+        eph = glonass_ephemeris(const, sat, t_tx_ns)
+        assert (eph.tb_gps_s < switch_ns / NS_PER_S) == (t_tx_ns < switch_ns)
+        icd, _ = _icd_orbit(eph, t_tx_ns)
+        assert float(np.linalg.norm(np.array(icd) - pos[i])) < 1e-4, sat
+        before = const.ecef_at(switch_ns - 1_000_000)[i]
+        after = const.ecef_at(switch_ns)[i]
+        jumps.append(float(np.linalg.norm(after - before)))
+    assert max(jumps) > 100.0  # the restart is a real jump (J2 drift of a day), hidden at the bound
