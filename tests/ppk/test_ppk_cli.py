@@ -213,3 +213,38 @@ def test_rinex_nav_glonass_record(tmp_path: Path) -> None:
 def test_ppk_unknown_system_is_refused(session: Path) -> None:
     with pytest.raises(AnalysisError, match="unknown satellite system X"):
         run_ppk(session, rovers=["rover_a"], systems=("G", "X"))
+
+
+def _nav_records(path: Path, system: str) -> dict[tuple[str, str], list[float]]:
+    """RINEX 3 navigation records of one system: (satellite, epoch) -> the numbers of the record, in order."""
+    lines = path.read_text().splitlines()
+    body = lines[next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln) + 1:]
+    out: dict[tuple[str, str], list[float]] = {}
+    key: tuple[str, str] | None = None
+    for ln in body:
+        if ln[:1].strip():
+            key = (ln[:3], ln[4:23]) if ln.startswith(system) else None
+            if key is not None:
+                out[key] = []
+            text = ln[23:]
+        else:
+            text = ln[4:]
+        if key is not None:
+            out[key] += [float(text[i:i + 19].replace("D", "E")) for i in range(0, len(text.rstrip()), 19)]
+    return out
+
+
+def test_rtklib_decodes_our_gloephemerisb_like_we_do(session: Path, tmp_path: Path) -> None:
+    """RTKLIB's own NovAtel decoder (convbin, decode_gloephemerisb) reads the simulated GLOEPHEMERISB frames into the
+    same GLONASS navigation records as our decoder and RINEX writer: an outside check of the encoding."""
+    run_ppk(session, rovers=["rover_a"], out=tmp_path / "x.parquet", work_dir=tmp_path / "w")
+    ours = _nav_records(tmp_path / "w" / "rover_a.nav", "R")
+    res = subprocess.run(["convbin", "-r", "nov", "-v", "3.04", "-o", str(tmp_path / "c.obs"), "-n",
+                          str(tmp_path / "c.nav"), str(tmp_path / "w" / "raw" / "rover_a.gps")],
+                         capture_output=True, text=True, timeout=120, check=False)
+    assert res.returncode == 0, res.stderr
+    theirs = _nav_records(tmp_path / "c.nav", "R")
+    assert len(ours) >= 5 and set(theirs) == set(ours)
+    for key, values in ours.items():
+        assert len(theirs[key]) == len(values) == 15, key
+        np.testing.assert_allclose(theirs[key], values, rtol=1e-11, atol=1e-20, err_msg=str(key))
