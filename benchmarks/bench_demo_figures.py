@@ -55,10 +55,18 @@ def main(out: Path) -> int:
         print(f"[{name}] ({time.perf_counter() - t0:.1f} s) {text}", flush=True)
     if (out / "session" / "demo.000.mcap").exists():
         ds = load_recording(session)
+        last: dict[str, int] = {}
         for topic in sorted(ds.topic_counts):
-            n, largest = backward_steps(ds.message_times(topic)[0])
+            times = ds.message_times(topic)[0]
+            n, largest = backward_steps(times)
             if n:
                 print(f"backward log_time: {topic}: {n} step(s), largest {largest:.3f} ms")
+            if len(times) and topic.startswith(("/can/", "/gnss/", "/daq/", "/optical/")):
+                last[topic] = int(times.max())
+        if last:  # the quality gate's early end: a stream that stops before the last one
+            end = max(last.values())
+            print("stream ends before the last stream: " + ", ".join(
+                f"{topic} {(end - t) / 1e9:.2f} s" for topic, t in sorted(last.items(), key=lambda kv: kv[1])[:4]))
     print(f"total wall {time.perf_counter() - t_all:.1f} s, {failed} stage(s) failed")
     return 1 if failed else 0
 

@@ -993,7 +993,7 @@ def record_simulated(
 
     ``actions`` run at their truth times on this thread; ``tick`` every 0.25 s of real time (a
     dashboard); ``on_started`` once the session records. ``device_process``, ``governed``: see
-    :class:`SimWorld`; the governed clock is released when the drive ends, before the readers close.
+    :class:`SimWorld`; the governed clock is released once the session has stopped.
     """
     t0 = time.monotonic()
     stop = stop or threading.Event()
@@ -1035,9 +1035,14 @@ def record_simulated(
                     due = min(due, world.timebase.truth_start_ns + round(pending[0][0] * NS_PER_S))
                 stop.wait(min(0.25, max(0.0, (due - now) / world.speed / NS_PER_S)))
         finally:
-            if clock.governor is not None:
-                clock.governor.release()  # the readers close now: nothing left to wait for
-            summary = session.stop()
+            # the clock stays governed while the session stops (a reader that closes its end owes
+            # nothing): released first, it ran freely at full speed while the readers closed, and the
+            # streams that run on (GNSS) outlasted the ECU's, which ends with the drive, by seconds
+            try:
+                summary = session.stop()
+            finally:
+                if clock.governor is not None:
+                    clock.governor.release()
     finally:
         governor_text = world.governor_summary() if world.clock is not None else ""
         sys.setswitchinterval(switch)

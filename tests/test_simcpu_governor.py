@@ -367,3 +367,32 @@ def test_the_clock_stands_at_each_frame_until_the_ecu_has_sent_it(governor: Cloc
         bus.shutdown()
     assert ecu.frames_sent > 100 and ecu.frames_skipped == 0
     assert max(bus.late_ns) == 0, f"frames sent up to {max(bus.late_ns) / 1e6:.3f} ms after their time"
+
+
+def test_the_clock_stays_governed_while_the_session_stops(tmp_path: object, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 15 §4 (the CAN stream's early end): the clock was released before the session stopped,
+    so while the readers closed it ran freely at full speed and the streams that run on (GNSS)
+    outlasted the ECU's, which ends with the drive, by seconds of simulated time under load. Now a
+    reader that closes its end owes nothing, and the clock is released once the session has stopped."""
+    from pathlib import Path
+
+    from rig.session import RecordSession
+    from rig.simworld import record_simulated
+    from tests.session.recording import FAST_RTK, config
+
+    seen: list[tuple[bool, bool]] = []
+    stop = RecordSession.stop
+
+    def stop_and_look(self: RecordSession) -> object:
+        gov = self.clock.governor  # type: ignore[attr-defined]
+        before = gov.enabled
+        summary = stop(self)
+        seen.append((before, gov.enabled))
+        return summary
+
+    monkeypatch.setattr(RecordSession, "stop", stop_and_look)
+    cfg = config("straight:duration_s=2,speed_kmh=40", 3.0)
+    rec = record_simulated(cfg, Path(str(tmp_path)), name="tail", rtk=FAST_RTK, lead_s=1.0, governed=True)
+    assert rec.completed and rec.governor is not None
+    assert seen == [(True, True)]  # governed while every reader closed, released only after
+    assert rec.governor.safety_releases == 0
