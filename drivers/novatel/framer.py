@@ -44,11 +44,12 @@ end (neither needs a scan). Frames and counts are the same for any chunking, and
 returned by the very ``feed`` that completes it; bytes that are still held
 (:attr:`Framer.pending_bytes`) are counted in the stats once a scan has classified them.
 
-A 1-byte feed that changes no verdict costs one set lookup, one comparison and one list append
-(measured at about 45 ns, on top of about 35 ns for the call itself); the held bytes are
-joined into the buffer at the next look. That per-call floor is why 1 MB fed one byte at a time
-costs about 2.5-3x one 1 MB call on a receiver's stream, and more on streams that one call passes
-over at C speed (``benchmarks/bench_framer_chunking.py`` prints both and the floors).
+A 1-byte feed that changes no verdict appends the byte and makes one length comparison and (when
+a byte could end the wait) one set lookup: about 40 ns measured, on top of about 35 ns for the call
+itself. Appending is needed (any framer must keep the bytes of a frame it has not finished), and
+that per-call floor is why 1 MB fed one byte at a time costs about 3x one 1 MB call on a receiver's
+stream, and more on streams that one call passes over at C speed
+(``benchmarks/bench_framer_chunking.py`` prints both and the floors).
 """
 
 from __future__ import annotations
@@ -301,11 +302,7 @@ class Framer:
         self._wake_set: frozenset[bytes] | None
         self._wake_search: _WakeSearch
         self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
-        # 1-byte chunks fed since the bytes were last looked at: while they are quiet bytes (not of
-        # _wake_set) and fewer than _room (so _acc plus them stays below _wake_len), feed() only
-        # appends them here, a cheaper store than growing _acc. _settle() sets both after a look.
-        self._held: list[bytes | bytearray | memoryview] = []  # only immutable ones: see feed()
-        self._room = _AFTER_FRAME_LEN - 1
+        # The 1-byte chunks that are not of _wake_set (a 1-byte feed's test is one set lookup).
         self._quiet = _QUIET[self._wake_set]
         self._abbrev_resume: tuple[int, int, int] | None = None  # stream offsets (start, next line, end)
         self._base = 0  # stream offset of self._acc[0]
@@ -330,36 +327,30 @@ class Framer:
         """Running counts (the live object: take :meth:`FramerStats.copy` for a snapshot)."""
         stats = self._stats
         # kept here, not per feed: feed(1 byte) stays cheap
-        stats.bytes_in = self._base + len(self._acc) + len(self._held)
+        stats.bytes_in = self._base + len(self._acc)
         return stats
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         """Add bytes; return the frames completed by them (in stream order)."""
-        # A serial port's typical read, one byte that can change no verdict yet, is only held: one
-        # set lookup, one comparison, one list append. Other chunks (longer ones are never in the
-        # set; a bytearray or writable memoryview is unhashable) take the general path, which copies.
-        try:
-            if data in self._quiet:
-                held = self._held
-                if len(held) < self._room:
-                    held.append(data)
-                    return []
-        except (TypeError, ValueError):
-            pass
-        return self._feed(data)
-
-    def _feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         acc = self._acc
-        held = self._held
-        if held:
-            acc += b"".join(held)
-            held.clear()
         acc += data
-        n = len(acc)
-        if n < self._wake_len and (self._wake_set is None or self._wake_search(data) is None):
+        if len(acc) < self._wake_len:
             # No frame can complete, or be rejected, before the wake condition: keep the bytes only.
-            self._room = self._wake_len - n - 1
-            return []
+            if self._wake_set is None:
+                return []
+            try:
+                if data in self._quiet:  # a serial port's typical read, one byte: a hash lookup
+                    return []
+            except (TypeError, ValueError):  # a bytearray or writable memoryview: unhashable
+                pass
+            if self._wake_search(data) is None:  # a longer chunk (never in the set of 1-byte ones)
+                return []
+        return self._look()
+
+    def _look(self) -> list[Frame]:
+        """Look at the bytes held now that a fed chunk could change a verdict."""
+        acc = self._acc
+        n = len(acc)
         if n >= 10 and acc[0] == 0xAA and acc.startswith(_LONG_SYNC_28):
             # A standard long binary log at the start: the usual wake-ups when frames are fed in small
             # pieces (its header, then its last byte), taken here without a scan. The same decisions
@@ -369,13 +360,10 @@ class Framer:
                 if n < total:  # wait for the rest (as _parse_binary would say)
                     self._wake_len = total
                     self._wake_set = None
-                    self._room = total - n - 1
-                    self._quiet = _ALL_BYTES
                     return []
                 if n == total and self._decode_logs:
                     frame = self._whole_binary(acc)
                     if frame is not None:
-                        self._room = _AFTER_FRAME_LEN - 1
                         self._quiet = _QUIET_AFTER_FRAME
                         return [frame]
         resume = self._abbrev_resume
@@ -394,18 +382,8 @@ class Framer:
         self._settle()
         return frames
 
-    def _take_held(self) -> bytearray:
-        """Move the held 1-byte chunks into the buffer; return the buffer."""
-        acc = self._acc
-        held = self._held
-        if held:
-            acc += b"".join(held)
-            held.clear()
-        return acc
-
     def _settle(self) -> None:
-        """After a look at the bytes: what feed() may hold before the next look."""
-        self._room = self._wake_len - len(self._acc) - 1
+        """After a look at the bytes: the 1-byte chunks that feed() may keep without the next look."""
         self._quiet = _QUIET[self._wake_set]
 
     def flush(self) -> list[Frame]:
@@ -414,7 +392,6 @@ class Framer:
         An abbreviated log has no end marker; call this after a read timeout. Every other frame
         still waits for its bytes.
         """
-        self._take_held()
         self._flush = True
         try:
             return self._scan(final=False)
@@ -424,7 +401,6 @@ class Framer:
 
     def finish(self) -> list[Frame]:
         """End of stream: complete what can be completed, count the rest as truncated or garbage."""
-        self._take_held()
         frames = self._scan(final=True)
         self._acc.clear()
         self._wake_len = _AFTER_FRAME_LEN
@@ -436,7 +412,7 @@ class Framer:
     def pending_bytes(self) -> int:
         """Bytes held and not yet classified: the start of an incomplete frame, or bytes waiting for
         enough of them to decide anything (a few after a frame, up to 512 of garbage)."""
-        return len(self._acc) + len(self._held)
+        return len(self._acc)
 
     # --- scanning -----------------------------------------------------------------------
 

@@ -568,13 +568,13 @@ def _count_scans(framer: Framer) -> list[int]:
     """Count the looks at the held bytes: the general path of ``feed`` (a scan, or the check of a
     binary log's header or last byte), taken when a fed byte could change a verdict."""
     calls = [0]
-    look = framer._feed
+    look = framer._look
 
-    def counted(data: bytes | bytearray | memoryview) -> list[Frame]:
+    def counted() -> list[Frame]:
         calls[0] += 1
-        return look(data)
+        return look()
 
-    framer._feed = counted  # type: ignore[method-assign]
+    framer._look = counted  # type: ignore[method-assign]
     return calls
 
 
