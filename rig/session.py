@@ -65,7 +65,7 @@ from drivers.daq import DaqBlock, DaqEvent, DaqSession
 from drivers.novatel import BestPos
 from drivers.relay.endpoints import mask_credentials
 from rig.config import DaqConfig, ReceiverConfig, SessionConfig
-from rig.quality import Gap, StreamQuality, ended_early, live_verdicts, stream_of_topic
+from rig.quality import FLOOR_ALLOWANCE_MS, Gap, StreamQuality, ended_early, live_verdicts, stream_of_topic
 from rig.recorder import Attachment, Recorder, RecorderOptions, RecordingSummary, Source, session_metadata
 from rig.session_devices import (
     CAN_BLOCK_AGE_NS,
@@ -522,13 +522,13 @@ class RecordSession:
         ref = tb.reference_receiver
         host_err: dict[str, float] = {}
         if ref is not None:
-            e = tb.gnss_clock(ref).envelope_error_ns()
+            e = tb.gnss_clock(ref).map_error_ns()
             if e is not None:
-                host_err[f"gnss:{ref}"] = e / 1e6
-        add = next(iter(host_err.values()), 0.0)
+                host_err[f"gnss:{ref}"] = e / 1e6 + FLOOR_ALLOWANCE_MS
+        add = next(iter(host_err.values()), FLOOR_ALLOWANCE_MS)
         timing_err: dict[str, float] = {}
         for c in self.can:
-            e = tb.clock(c.clock_name).envelope_error_ns() if tb.clock(c.clock_name).n else None
+            e = tb.clock(c.clock_name).map_error_ns() if tb.clock(c.clock_name).n else None
             if e is not None:
                 timing_err[f"can:{c.cc.name}"] = e / 1e6 + add
         verdicts = live_verdicts(timings, gaps, span_ns=end - start, timing_error_ms=timing_err,

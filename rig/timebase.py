@@ -550,6 +550,56 @@ class ClockEstimator:
         starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
         return float(np.percentile(np.minimum.reduceat(r, starts), percentile))
 
+    def floor_heights(self, span_s: float = 5.0) -> tuple[FloatArray, FloatArray] | None:
+        """How high above the map the stream's latency floor sat, span by span: (device ns, height ns).
+
+        For every ``span_s`` window of device time (one starting at each bin, whole windows only; half
+        the stream's span when that is shorter than two windows) the height is the smallest
+        |bin minimum − map| inside it: the floor the lowest pairs held for that whole window. A window
+        with no pair (a silence) has none. Device times are the windows' starts. None before two bins.
+        """
+        with self._lock:
+            if self._n == 0:
+                return None
+            x, y = self._points()
+            x0, base = self._x0, self._y_base
+        if x.size < 2 or x0 is None:
+            return None
+        m = self.mapping()
+        dev = x0 + x.astype(np.int64)
+        ref = dev + base + y.astype(np.int64)
+        r = np.abs(ref - m(dev)).astype(np.float64)
+        key = (x // self._bin_ns).astype(np.int64)
+        key -= key[0]
+        grid = np.full(int(key[-1]) + 1, np.inf)
+        np.minimum.at(grid, key, r)
+        # a stream shorter than two windows is judged on windows of half its length (a starved reader's
+        # few seconds of frames must not all fall in one window that holds its one prompt frame)
+        k = max(1, min(round(span_s * 1e9 / self._bin_ns), grid.size // 2))
+        h = np.lib.stride_tricks.sliding_window_view(grid, k).min(axis=1)
+        starts = x0 + float(x[0]) + np.arange(h.size, dtype=np.float64) * self._bin_ns
+        ok = np.isfinite(h)
+        return starts[ok], h[ok]
+
+    def map_error_ns(self, span_s: float = 5.0) -> float | None:
+        """Upper bound of the map's error that the pairs show: the highest the latency floor held above
+        the map for ``span_s`` on end (the maximum of :meth:`floor_heights`, ns). None before two bins.
+
+        Transport latency is never negative, so where the map is right, some pair in every few seconds
+        comes through at the floor and sits on the map (the floor's own scatter: tens of µs); a pair
+        that is merely late (a scheduling hiccup, a burst) is latency — the frame's time comes from
+        its device stamp through the map, so its lateness costs the analysis nothing. Where the pairs'
+        floor stays above the map for a whole ``span_s`` either the latency floor rose or the clock
+        moved away from the map (an NTP step or slew, a device clock reset), and the pairs cannot tell
+        which: the map there can be wrong by that height, so that height is the bound. No quartz clock
+        wanders from a 120 s piecewise-linear map by a measurable amount within ``span_s``, so a shorter
+        excursion is latency. See :mod:`rig.quality` for how the figures compare with the truth.
+        """
+        fh = self.floor_heights(span_s)
+        if fh is None:
+            return None
+        return float(fh[1].max()) if fh[1].size else None
+
     def quality(self, leap_seconds: int | None = None) -> ClockQuality:
         """The record for ``/rig/timebase``."""
         st = self.status()

@@ -15,25 +15,25 @@ IntArray = npt.NDArray[np.int64]
 NO_TIME = np.int64(T.NO_TIME_NS)
 
 
-def starved_interface(t: IntArray, host: IntArray) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_]]:
+def starved_interface(t: IntArray, host: IntArray, _dev: IntArray) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_]]:
     """Interface-stamped frames whose reader falls behind by 0.5 s per second after 2 s; at the end of the
     recording the backlog is never read (frames the host did not take before its last frame time are lost)."""
     back = np.clip((t - 2 * NS) // 2, 0, None)
     return host - 300_000, host + back, host + back <= host[-1]
 
 
-def starved_host(t: IntArray, host: IntArray) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_]]:
+def starved_host(t: IntArray, host: IntArray, dev: IntArray) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_]]:
     """The same reader with host stamps only (no interface clock)."""
-    _dev, h, keep = starved_interface(t, host)
+    _dev, h, keep = starved_interface(t, host, dev)
     return np.full(t.size, NO_TIME), h, keep
 
 
-def stalled(t: IntArray, host: IntArray) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_]]:
+def stalled(t: IntArray, host: IntArray, _dev: IntArray) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_]]:
     """No frames from 3.0 to 3.5 s (the bus or the reader stopped), otherwise clean."""
     return np.full(t.size, NO_TIME), host, ~((t > 3 * NS) & (t < 3 * NS + NS // 2))
 
 
-def jittery(t: IntArray, host: IntArray) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_]]:
+def jittery(t: IntArray, host: IntArray, _dev: IntArray) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_]]:
     """Host-stamped frames of which half arrive 3 ms late: a loaded host, not a starved one."""
     late = (np.random.default_rng(1).random(t.size) < 0.5) * 3_000_000
     return np.full(t.size, NO_TIME), host + late, np.ones(t.size, dtype=bool)

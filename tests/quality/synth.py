@@ -14,9 +14,10 @@ from rig.config import load_session as load_config
 from rig.recorder import Attachment, Recorder, RecorderOptions, find_parts, scan_part
 from tests.calib_cli.synth import SIM_TOML, simulate_truth, straights, write_truth_session
 
-FrameEdit = Callable[[npt.NDArray[np.int64], npt.NDArray[np.int64]],
+FrameEdit = Callable[[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64]],
                      tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.bool_]]]
-"""(true time ns from the start, host ns) → (device ns or NO_TIME, host ns, keep mask) of the frames."""
+"""(host ns from the first frame, host ns, device ns or NO_TIME) → (device ns or NO_TIME, host ns, keep mask)
+of the frames."""
 
 NS = 1_000_000_000
 
@@ -54,7 +55,7 @@ def rewrite(src: Path, out: Path, name: str, edit: FrameEdit | None = None, *,
         dev = rec["device_ts_ns"].astype(np.int64)
         keep = np.ones(host.size, dtype=bool)
         if edit is not None:
-            dev, host, keep = edit(host - host[0], host)
+            dev, host, keep = edit(host - host[0], host, dev)
         blocks = []
         idx = np.flatnonzero(keep)
         for b in range(0, idx.size, 50):
