@@ -526,7 +526,10 @@ class ClockEstimator:
         return (r - m(d)).astype(np.float64)
 
     def envelope_error_ns(self, percentile: float = 95.0, group_s: float = 1.0) -> float | None:
-        """How far the envelope can be off: ``percentile`` of |lowest pair − map| per ``group_s`` (ns).
+        """``percentile`` of |lowest pair − map| per ``group_s`` (ns): the time-base gate's previous figure.
+
+        It reads a second whose every pair was late (a descheduled reader) as error of the map; the gate
+        now uses :meth:`map_error_ns` (``benchmarks/study_timebase_gate.py`` compares the two).
 
         Each bin (``bin_s`` of device time) keeps its lowest pair; the bins are grouped by ``group_s``
         of device time (at least one bin). On a clean link every group holds a message that came
@@ -553,10 +556,10 @@ class ClockEstimator:
     def floor_heights(self, span_s: float = 5.0) -> tuple[FloatArray, FloatArray] | None:
         """How high above the map the stream's latency floor sat, span by span: (device ns, height ns).
 
-        For every ``span_s`` window of device time (one starting at each bin, whole windows only; half
-        the stream's span when that is shorter than two windows) the height is the smallest
-        |bin minimum − map| inside it: the floor the lowest pairs held for that whole window. A window
-        with no pair (a silence) has none. Device times are the windows' starts. None before two bins.
+        For every ``span_s`` window of device time (one starting at each bin that holds pairs, whole
+        windows only; half the stream's span when that is shorter than two windows) the height is the
+        smallest |bin minimum − map| inside it: the floor the lowest pairs held for that whole window.
+        Device times are the windows' first pairs. None before two bins.
         """
         with self._lock:
             if self._n == 0:
@@ -571,15 +574,16 @@ class ClockEstimator:
         r = np.abs(ref - m(dev)).astype(np.float64)
         key = (x // self._bin_ns).astype(np.int64)
         key -= key[0]
-        grid = np.full(int(key[-1]) + 1, np.inf)
-        np.minimum.at(grid, key, r)
         # a stream shorter than two windows is judged on windows of half its length (a starved reader's
         # few seconds of frames must not all fall in one window that holds its one prompt frame)
-        k = max(1, min(round(span_s * 1e9 / self._bin_ns), grid.size // 2))
-        h = np.lib.stride_tricks.sliding_window_view(grid, k).min(axis=1)
-        starts = x0 + float(x[0]) + np.arange(h.size, dtype=np.float64) * self._bin_ns
-        ok = np.isfinite(h)
-        return starts[ok], h[ok]
+        k = max(1, min(round(span_s * 1e9 / self._bin_ns), (int(key[-1]) + 1) // 2))
+        # one window from each bin that holds pairs (bins are unique and ascending: a window holds at most
+        # k of them), whole windows only; sparse, so a silence or a wild stamp costs no memory
+        first = np.flatnonzero(key + k - 1 <= key[-1])
+        idx = np.minimum(first[:, None] + np.arange(k)[None, :], key.size - 1)
+        inside = key[idx] < (key[first] + k)[:, None]
+        h = np.where(inside, r[idx], np.inf).min(axis=1)
+        return (x0 + x[first]).astype(np.float64), h
 
     def map_error_ns(self, span_s: float = 5.0) -> float | None:
         """Upper bound of the map's error that the pairs show: the highest the latency floor held above

@@ -88,6 +88,19 @@ def test_the_recording_reports_the_starved_can_stream_as_late(starved: tuple[Pat
     assert summary.verdicts["can:vsc"].verdict.value == "unusable", summary.verdicts["can:vsc"].message()
 
 
+def test_the_starved_stream_is_refused_on_its_timing_figure_too(starved: tuple[Path, SessionSummary]) -> None:
+    """Not only its early end: the frames' floor rose by seconds above the map, which the map cannot be checked
+    against (the reader's backlog and a clock running away look alike), live and offline."""
+    from rig.dataset import load_session
+    from rig.quality import Verdict, session_verdicts
+
+    path, summary = starved
+    for q in (summary.verdicts["can:vsc"], session_verdicts(load_session(path))["can:vsc"]):
+        timing = next(f for f in q.figures if f.name == "timing_error_ms")
+        assert timing.verdict is Verdict.UNUSABLE, q.message()
+        assert timing.value > 100.0 and "can:vsc unusable: timing error" in q.message()
+
+
 def test_the_file_holds_the_early_end_as_a_gap_event(starved: tuple[Path, SessionSummary]) -> None:
     from rig.dataset import load_session
 
