@@ -254,7 +254,7 @@ _WAKE_SYNC = _wake_on(_SYNC.pattern)  # garbage held: only a sync byte can start
 _WAKE_AFTER_FRAME = _wake_on(rb"[\]\n$\xd3]")  # see _AFTER_FRAME_LEN
 
 _ALL_BYTES = frozenset(bytes([c]) for c in range(256))
-#: The 1-byte chunks that :meth:`Framer.feed` may hold without a look, per wake set (None: any byte).
+#: The 1-byte chunks that :meth:`Framer.feed` keeps without a look, per wake set (None: any byte).
 _QUIET: dict[frozenset[bytes] | None, frozenset[bytes]] = {None: _ALL_BYTES} | {
     wake[0]: _ALL_BYTES - wake[0]
     for wake in (_WAKE_TEXT_END, _WAKE_LINE_END, _WAKE_NOT_HEX, _WAKE_NOT_44, _WAKE_NOT_LT, _WAKE_SYNC,
@@ -326,8 +326,7 @@ class Framer:
     def stats(self) -> FramerStats:
         """Running counts (the live object: take :meth:`FramerStats.copy` for a snapshot)."""
         stats = self._stats
-        # kept here, not per feed: feed(1 byte) stays cheap
-        stats.bytes_in = self._base + len(self._acc)
+        stats.bytes_in = self._base + len(self._acc)  # kept here, not per feed: feed(1 byte) stays cheap
         return stats
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
