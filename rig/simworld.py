@@ -323,8 +323,13 @@ class SimWorld:
 
     @property
     def end_ns(self) -> int:
-        """Clock time at which the drive has ended (plus time for the last outputs to arrive)."""
-        tail_s = 0.5 + self.sim.gnss.output_latency_s
+        """Clock time at which the drive has ended (plus time for the last outputs to arrive).
+
+        On the governed clock the last GNSS epoch's logs are written and read before the clock passes
+        them, so 0.1 s past its output latency is enough; every stream that outlives the ECU's (which
+        ends with the drive) by this much looks like a CAN stream that ended early. The free-running
+        clock keeps 0.5 s for readers that fall behind."""
+        tail_s = (0.1 if self.governed else 0.5) + self.sim.gnss.output_latency_s
         return self.timebase.truth_start_ns + round((self.duration_s + tail_s) * NS_PER_S)
 
     def start(self, clock: ScaledClock | None = None) -> None:
