@@ -7,7 +7,9 @@ and wall time; with --live, what the live feed published, decimated and dropped,
 each client received. Goal: the same dropped / late / stalled figures with and without the live view.
 Run from the repository root (the simulated devices run in their own process, as in ``rig sim record``)::
 
-    python benchmarks/bench_live.py [--drive step_steer:lead_s=2,hold_s=20] [--speed 1] [--clients 3]
+    python benchmarks/bench_live.py [--drive step_steer:lead_s=2,hold_s=20] [--speed 1] [--clients 3] [--token]
+
+``--token`` adds a third run with a token: the clients go through the token gate (rig.live.gate).
 """
 
 from __future__ import annotations
@@ -30,7 +32,8 @@ def _cpu_s() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
-def run(drive: str, speed: float, clients: int, live: bool) -> dict[str, Any]:
+def run(drive: str, speed: float, clients: int, live: bool, token: str | None = None) -> dict[str, Any]:
+    from drivers.relay.endpoints import Secret
     from rig.live import LIVE_TOPICS, LiveOptions, LiveView
     from rig.live.layout import message_paths, session_layout
     from rig.session import RecordSession
@@ -39,7 +42,7 @@ def run(drive: str, speed: float, clients: int, live: bool) -> dict[str, Any]:
     from tests.session.recording import FAST_RTK, config
 
     cfg = config(drive, speed)
-    view = LiveView(LiveOptions(port=0)) if live else None
+    view = LiveView(LiveOptions(port=0, token=Secret(token) if token else None)) if live else None
     topics = sorted({p.split(".")[0] for p in message_paths(__import__("json").loads(session_layout().to_json()))}
                     | set(LIVE_TOPICS))
     received: list[int] = []
@@ -48,7 +51,8 @@ def run(drive: str, speed: float, clients: int, live: bool) -> dict[str, Any]:
 
     def client() -> None:
         assert view is not None
-        got = collect(view.ws_url, topics, counts=dict.fromkeys(topics, 10 ** 9), timeout_s=600.0, stop=done)
+        url = f"ws://127.0.0.1:{view.ws_port}/" + (f"?token={token}" if token else "")
+        got = collect(url, topics, counts=dict.fromkeys(topics, 10 ** 9), timeout_s=600.0, stop=done)
         received.append(sum(len(v) for v in got.messages.values()))
 
     def started(s: RecordSession) -> None:
@@ -83,10 +87,12 @@ def main() -> None:
     ap.add_argument("--drive", default="step_steer:lead_s=2,hold_s=20")
     ap.add_argument("--speed", type=float, default=1.0)
     ap.add_argument("--clients", type=int, default=3)
+    ap.add_argument("--token", action="store_true", help="also a run with a token (clients through the gate)")
     a = ap.parse_args()
-    for live in (False, True):
-        r = run(a.drive, a.speed, a.clients, live)
-        label = f"--live, {a.clients} clients" if live else "no live view"
+    token = "bench-token-0123456789"
+    for live, tok in [(False, None), (True, None)] + ([(True, token)] if a.token else []):
+        r = run(a.drive, a.speed, a.clients, live, tok)
+        label = (f"--live, {a.clients} clients" + (", token" if tok else "")) if live else "no live view"
         print(f"{label:>20}: {r['messages']} messages, dropped {r['dropped']}, late {r['late']}, "
               f"stalls {r['stalled']}, CPU {r['cpu_s']:.1f} s in {r['wall_s']:.1f} s wall")
         if live:

@@ -93,22 +93,26 @@ class TokenGate:
         self._token = token.reveal().encode()
         self._upstream_port = upstream_port
         self._sock = _bind(host, port)
+        self._port = int(self._sock.getsockname()[1])
         self._upstreams: dict[ServerConnection, ClientConnection] = {}
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._stop: asyncio.Event | None = None
+        # loop and stop event exist before the thread runs: stop() works whenever it comes
+        self._loop = asyncio.new_event_loop()
+        self._stop = asyncio.Event()
         self._ready = threading.Event()
         self._error: list[BaseException] = []
         self._thread = threading.Thread(target=self._run, name="rig-live-gate")
         self._thread.start()
-        self._ready.wait(10.0)
+        self._ready.wait()  # set once serving, or when the loop ended (an error: reported below)
         if self._error:
             self._thread.join(5.0)
+            self._sock.close()
             raise ConfigError(f"--live {port} --live-bind {host}: cannot serve the live WebSocket: "
                               f"{self._error[0]}") from self._error[0]
 
     @property
     def port(self) -> int:
-        return int(self._sock.getsockname()[1])
+        """The port clients connect to (the one bound, also after :meth:`stop`)."""
+        return self._port
 
     def authorized(self, path: str, headers: Headers) -> bool:
         """Whether the request carries the token (constant-time compare)."""
@@ -117,8 +121,10 @@ class TokenGate:
     # the loop's side ------------------------------------------------------------------------------------
 
     def _run(self) -> None:
+        loop = self._loop
+        asyncio.set_event_loop(loop)
         try:
-            asyncio.run(self._main())
+            loop.run_until_complete(self._main())
         except BaseException as exc:  # reported to the constructor (before ready) or logged
             if not self._ready.is_set():
                 self._error.append(exc)
@@ -126,10 +132,13 @@ class TokenGate:
                 log.exception("live WebSocket gate failed")
         finally:
             self._ready.set()
+            try:
+                loop.run_until_complete(loop.shutdown_asyncgens())
+            finally:
+                asyncio.set_event_loop(None)
+                loop.close()
 
     async def _main(self) -> None:
-        self._loop = asyncio.get_running_loop()
-        self._stop = asyncio.Event()
         async with serve(self._relay, sock=self._sock, process_request=self._check, process_response=self._done,
                          select_subprotocol=self._subprotocol, compression=None, logger=_ws_log,
                          server_header=None) as server:
@@ -211,10 +220,8 @@ class TokenGate:
 
     def stop(self) -> None:
         """Close every client and its upstream connection, stop listening and join the thread."""
-        loop, stop = self._loop, self._stop
-        if loop is not None and stop is not None and self._thread.is_alive():
-            with contextlib.suppress(RuntimeError):  # the loop has already ended
-                loop.call_soon_threadsafe(stop.set)
+        with contextlib.suppress(RuntimeError):  # the loop has already ended and closed
+            self._loop.call_soon_threadsafe(self._stop.set)
         self._thread.join(10.0)
         if self._thread.is_alive():
             log.error("live WebSocket gate thread did not stop within 10 s")

@@ -2,21 +2,44 @@
 
 from __future__ import annotations
 
+import json
 import logging
+from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
+import rig.topics as T  # noqa: N812 - topics used as a namespace
 from drivers.relay.endpoints import MASK
-from rig.live.feed import LiveFeed, LiveOptions
+from rig.live.feed import LIVE_TOPICS, LiveFeed, LiveOptions
 from rig.live.gate import UPSTREAM_HOST, TokenGate
+from rig.live.layout import layout_json, message_paths, session_layout
 from rig.live.page import StatusPage
 from rig.live.server import FoxgloveSink
 
 if TYPE_CHECKING:
     from rig.session import RecordSession
 
-__all__ = ["LiveView"]
+__all__ = ["LiveView", "upfront_channels"]
 
 log = logging.getLogger(__name__)
+
+
+def upfront_channels(antenna_a: str, antenna_b: str, buses: Iterable[str]) -> dict[str, T.SchemaSpec]:
+    """The JSON channels known before the recording's first message: the live-only ones and every topic
+    the Foxglove layout (:func:`~rig.live.layout.session_layout`) names, per CAN bus. The Foxglove server
+    creates them before it listens (see :mod:`rig.live.server`)."""
+    out = {t: s for t, s in LIVE_TOPICS.items() if s is not None}
+    for bus in buses:
+        for path in message_paths(json.loads(layout_json(session_layout(antenna_a, antenna_b, bus)))):
+            topic = path.split(".", 1)[0]
+            if topic in LIVE_TOPICS:
+                continue
+            try:
+                spec, _params = T.spec_for_topic(topic)
+            except ValueError:
+                continue  # not a recorded topic (the layout test holds every path to one)
+            if spec.schema.is_json:
+                out[topic] = spec.schema
+    return out
 
 
 class LiveView:
@@ -43,8 +66,10 @@ class LiveView:
         cfg = session.cfg
         by_antenna = {r.antenna: r.name for r in cfg.receivers if r.role == "rover" and r.antenna}
         gated = opts.token is not None
+        channels = upfront_channels(by_antenna.get("a", "rover_a"), by_antenna.get("b", "rover_b"),
+                                    [c.name for c in cfg.can] or ["vsc"])
         sink = FoxgloveSink(host=UPSTREAM_HOST if gated else opts.bind, port=0 if gated else opts.port,
-                            name=f"vsc-rig {session.name}")
+                            name=f"vsc-rig {session.name}", channels=channels)
         gate: TokenGate | None = None
         try:
             if opts.token is not None:

@@ -27,9 +27,13 @@ class LiveRun:
     error: list[BaseException] = field(default_factory=list)
 
 
-def run_live(tmp: Path, options: LiveOptions, drive: str = "step_steer:lead_s=1,hold_s=3",
+def run_live(tmp: Path, options: LiveOptions, drive: str = "step_steer:lead_s=1,hold_s=300",
              speed: float = 2.0) -> Iterator[LiveRun]:
-    """Record ``drive`` with the live view attached on a thread; yields once the view serves."""
+    """Record ``drive`` with the live view attached on a thread; yields once the view serves.
+
+    The default drive outlasts any test: the recording ends when the test does (``stop``), so a client
+    that connects late on a loaded host still finds the car driving.
+    """
     cfg = config(drive, speed)
     run = LiveRun(LiveView(options))
 

@@ -52,7 +52,7 @@ def test_every_layout_path_exists_in_a_recorded_session_or_the_live_channels(tmp
         # under load the first LTR values can come late: read until one has arrived, not a fixed count
         got = collect(run.view.ws_url, live_topics, counts=counts, timeout_s=90.0, until=_has_ltr_value)
         for t in live_topics:
-            assert got.messages.get(t), f"live channel {t} sent nothing"
+            assert got.messages.get(t), f"live channel {t} sent nothing; server status: {got.statuses}"
         for t, msgs in got.messages.items():
             if t in LIVE_TOPICS and LIVE_TOPICS[t] is not None:
                 messages[t] = [json.loads(p) for _ns, p in msgs]

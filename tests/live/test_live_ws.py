@@ -8,6 +8,8 @@ import json
 import numpy as np
 
 from rig.live.feed import TOPIC_LIVE_LOG, TOPIC_LIVE_SIDESLIP, TOPIC_LIVE_STATUS
+from rig.live.server import FoxgloveSink
+from rig.live.view import upfront_channels
 from tests.live.conftest import LiveRun
 from tests.live.wsclient import collect
 
@@ -25,6 +27,7 @@ def test_client_subscribes_and_receives_during_a_simulated_recording(live_run: L
     assert got.server_info.get("name", "").startswith("vsc-rig")
     # no capability that lets a phone write: subscribe only
     assert not set(got.server_info.get("capabilities", [])) & {"clientPublish", "services", "parameters"}
+    assert not got.statuses, got.statuses  # no subscription refused
     for topic in (FIX, ROLES, TOPIC_LIVE_SIDESLIP, TOPIC_LIVE_STATUS):
         assert len(got.messages.get(topic, ())) >= 2, f"{topic}: {len(got.messages.get(topic, ()))} messages"
     # the recorded schema goes out unchanged: the map reads foxglove.LocationFix
@@ -49,3 +52,21 @@ def test_client_subscribes_and_receives_during_a_simulated_recording(live_run: L
     status = json.loads(got.messages[TOPIC_LIVE_STATUS][-1][1])
     assert [r["name"] for r in status["rovers"]] == ["rover_a", "rover_b"]
     assert live_run.view.feed is not None and live_run.view.feed.stats.dropped == 0
+
+
+def test_the_layouts_channels_exist_before_the_server_listens() -> None:
+    """foxglove-sdk 0.30.3 can advertise a channel created while a client connects without entering it in
+    that client's table, and then refuses the client's subscription ("Unknown channel ID"): the live view
+    creates the channels it knows of before it listens, so a client finds them all at its first advertise."""
+    channels = upfront_channels("rover_a", "rover_b", ["vsc"])
+    assert {FIX, ROLES, "/gnss/rover_b/fix", TOPIC_LIVE_SIDESLIP, TOPIC_LIVE_STATUS, "/live/ltr"} <= set(channels)
+    sink = FoxgloveSink(host="127.0.0.1", port=0, name="vsc-rig upfront", channels=channels)
+    try:
+        assert set(sink.topics) == set(channels) | {TOPIC_LIVE_LOG}
+        # no message published at all: what the client sees was advertised before it connected
+        got = collect(f"ws://127.0.0.1:{sink.port}", [], timeout_s=10.0,
+                      until=lambda r: set(channels) <= set(r.advertised))
+    finally:
+        sink.stop()
+    assert set(channels) | {TOPIC_LIVE_LOG} <= set(got.advertised)
+    assert got.advertised[FIX]["schemaName"] == "foxglove.LocationFix"

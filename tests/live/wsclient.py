@@ -31,6 +31,8 @@ class Received:
     """topic → (log time ns, payload) in arrival order."""
     server_info: dict[str, Any] = field(default_factory=dict)
     subprotocol: str = ""
+    statuses: list[dict[str, Any]] = field(default_factory=list)
+    """The server's status messages (e.g. its refusal of a subscription: "Unknown channel ID: 2")."""
 
 
 async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_s: float,
@@ -59,6 +61,8 @@ async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_
                 msg = json.loads(frame)
                 if msg["op"] == "serverInfo":
                     out.server_info = msg
+                elif msg["op"] == "status":
+                    out.statuses.append(msg)
                 elif msg["op"] == "advertise":
                     new = []
                     for ch in msg["channels"]:
