@@ -396,3 +396,19 @@ def test_the_clock_stays_governed_while_the_session_stops(tmp_path: object, monk
     assert rec.completed and rec.governor is not None
     assert seen == [(True, True)]  # governed while every reader closed, released only after
     assert rec.governor.safety_releases == 0
+
+
+def test_a_governed_world_ends_0_1_s_after_the_last_gnss_output_not_0_5_s() -> None:
+    """The ECU's CAN stream ends with the drive; every stream that runs on past it looked like a CAN
+    stream that ended early. The governed clock waits for the last epoch's logs to be written and
+    read, so the world ends 0.1 s past the receivers' output latency (0.5 s on the free-running clock)."""
+    from rig.simworld import SimWorld
+    from tests.session.recording import config
+
+    cfg = config("straight:duration_s=1,speed_kmh=40", 3.0)
+    assert cfg.simulation is not None
+    latency_ns = round(cfg.simulation.gnss.output_latency_s * 1e9)
+    for governed, tail_ns in ((True, 100 * MS), (False, 500 * MS)):
+        world = SimWorld(cfg, governed=governed)
+        drive_end_ns = world.timebase.truth_start_ns + round(world.duration_s * 1e9)
+        assert world.end_ns - drive_end_ns - latency_ns == pytest.approx(tail_ns, abs=1_000)
