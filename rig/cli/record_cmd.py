@@ -86,7 +86,8 @@ LivePort = Annotated[int, typer.Option("--live-port", min=0, max=65535,
 LiveBind = Annotated[str, typer.Option("--live-bind", help="Address --live listens on; not a loopback address "
                                                           "(a phone on the car's network) needs --live-token.")]
 LiveToken = Annotated[str | None, typer.Option("--live-token", help="Token of the live view (env RIG_LIVE_TOKEN); "
-                                                                   "the status page asks for it (?token=...).")]
+                                                                   "the status page and the WebSocket ask for it "
+                                                                   "(?token=...).")]
 LiveStatusPort = Annotated[int | None, typer.Option("--live-status-port", min=0, max=65535,
                                                     help="Port of the status page (default: --live-port + 1).")]
 LiveFullRate = Annotated[bool, typer.Option("--live-full-rate",
