@@ -8,8 +8,14 @@ ephemerides from RAWEPHEMB only; see docs/decisions/0004-ppk-with-debian-rtklib.
 solves in kinematic mode, forward and backward combined, L1+L2, against the base position the
 corrections carry (RTCM 1005/1006), with GPS and GLONASS (:data:`SYSTEMS`). GLONASS ambiguities are
 fixed too (``pos2-gloarmode = on``): that assumes no inter-channel (FDMA) biases between the rover and
-the base, which holds for the simulator and for two receivers of one make; GLONASS ephemerides are
-optional (without GLOEPHEMERIS logs the solution is GPS-only, as before).
+the base, which holds for the simulator and for two receivers of one make.
+
+Before solving, each rover's systems are decided (:func:`usable_systems`): a system is used only where the
+rover's RINEX observations, the base's and the rover's ephemeris logs all have it. A system left out is a
+warning naming the rover, the system and the log to add (an older session without GLOEPHEMERISB is solved
+with GPS alone, and says so). A system asked for explicitly (``systems=``, ``rig ppk --systems``) that no
+rover can use is an error; the default (:data:`SYSTEMS`) never fails for a missing optional system. GPS
+ephemerides (GPSEPHEMB) and raw observations (RANGECMPB) are required whenever GPS is solved with.
 
 The solutions of every rover go into one side file next to the session, ``<base>.ppk.parquet``
 (:func:`ppk_file_path`, :data:`PPK_COLUMNS`), which :mod:`rig.sessiondata` reads. RTKLIB runs as
@@ -28,6 +34,7 @@ import tempfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -38,14 +45,18 @@ from vsccore.errors import AnalysisError, DecodeError, RigError, SessionFileErro
 
 __all__ = [
     "PPK_COLUMNS",
+    "PPK_METADATA_KEY",
     "SYSTEMS",
+    "SYSTEM_NAMES",
     "PpkQuality",
     "PpkRover",
     "PpkRun",
     "RtklibMissingError",
     "ppk_file_path",
+    "ppk_metadata",
     "read_ppk_file",
     "run_ppk",
+    "usable_systems",
     "write_rinex_nav",
 ]
 
@@ -56,8 +67,19 @@ DEFAULT_TIMEOUT_S = 600.0
 """Per RTKLIB call (rnx2rtkp on an hour at 20 Hz takes minutes, not tens of minutes)."""
 ELEVATION_MASK_DEG = 10.0
 SYSTEMS = ("G", "R")
-"""Satellite systems rnx2rtkp solves with by default: GPS and GLONASS (RINEX letters)."""
+"""Satellite systems rnx2rtkp solves with by default: GPS and GLONASS (RINEX letters), each where the session
+has what it needs (see :func:`usable_systems`)."""
+SYSTEM_NAMES = {"G": "GPS", "R": "GLONASS"}
+"""The systems ``rig ppk`` can solve with (it writes navigation data from these systems' ephemeris logs)."""
+EPHEMERIS_LOGS = {"G": "GPSEPHEMB", "R": "GLOEPHEMERISB"}
+"""The rover log with each system's broadcast ephemerides."""
+BASE_MSM = {"G": "RTCM1077", "R": "RTCM1087"}
+"""The base's RTCM3 observation message (MSM7) per system."""
+PPK_METADATA_KEY = b"rig.ppk"
+"""Parquet key-value metadata of the side file: JSON with the systems asked for, each rover's systems used and
+GLONASS set count, and the warnings of the run."""
 _NAVSYS = {"G": 1, "S": 2, "R": 4, "E": 8, "J": 16, "C": 32}  # RTKLIB's pos1-navsys bits
+_OTHER_SYSTEMS = {"S": "SBAS", "E": "Galileo", "J": "QZSS", "C": "BeiDou"}
 PPK_COLUMNS = ("rover", "gps_time_ns", "time_ns", "lat_deg", "lon_deg", "height_m", "q", "ns",
                "sdn_m", "sde_m", "sdu_m", "ratio")
 """Columns of the side file: GPS time (ns since the GPS epoch), UTC (ns since the Unix epoch, with the
@@ -99,6 +121,14 @@ class PpkRover:
     satellites_median: float
     glonass_ephemerides: int = 0
     """GLOEPHEMERIS sets written to the navigation file (0: GPS-only solution)."""
+    systems: tuple[str, ...] = ()
+    """The satellite systems rnx2rtkp solved this rover with (RINEX letters; see :func:`usable_systems`)."""
+
+    @property
+    def systems_text(self) -> str:
+        """``GPS + GLONASS``, ``GPS only``."""
+        names = [SYSTEM_NAMES.get(s, s) for s in self.systems]
+        return f"{names[0]} only" if len(names) == 1 else " + ".join(names)
 
     @property
     def fix_ratio(self) -> float:
@@ -289,6 +319,61 @@ def _is_rinex_obs(path: Path) -> bool:
     return first[60:80].startswith(b"RINEX VERSION / TYPE") and first[20:21] == b"O"
 
 
+def _rinex_obs_systems(path: Path, wanted: Iterable[str]) -> set[str]:
+    """The systems (of ``wanted``) with at least one observation line in a RINEX 3 observation file (the first
+    field of a body line names the satellite: ``G05``, ``R14``); stops reading once every wanted one was seen."""
+    want = set(wanted)
+    seen: set[str] = set()
+    body = False
+    try:
+        with open(path) as f:
+            for line in f:
+                if not body:
+                    body = "END OF HEADER" in line
+                    continue
+                s = line[:1]
+                if s in want and s not in seen and line[1:3].strip().isdigit():
+                    seen.add(s)
+                    if seen == want:
+                        break
+    except OSError as exc:
+        raise SessionFileError(f"{path}: cannot read the RINEX observations: {exc}") from exc
+    return seen
+
+
+def usable_systems(rover: str, asked: Sequence[str], *, rover_obs: Iterable[str], ephemerides: Iterable[str],
+                   base_obs: Iterable[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The systems of ``asked`` that ``rover`` can be solved with, and a note per system left out.
+
+    A system is used when the rover's observations (its RINEX obs from RANGECMPB), its decoded ephemerides
+    and the base's observations all have it. Each note names the rover, the system, what is missing and the
+    log to add, e.g. ``rover_b: no GLOEPHEMERISB in the session; GLONASS not used for rover_b — log
+    GLOEPHEMERISB ONCHANGED on rover_b (see examples/car-template.toml)``.
+    """
+    obs, eph, base = set(rover_obs), set(ephemerides), set(base_obs)
+    used: list[str] = []
+    notes: list[str] = []
+    for s in asked:
+        name = SYSTEM_NAMES.get(s, s)
+        why: list[str] = []
+        todo: list[str] = []
+        if s not in eph:
+            why.append(f"no {EPHEMERIS_LOGS[s]} in the session")
+            todo.append(f"log {EPHEMERIS_LOGS[s]} ONCHANGED on {rover}")
+        if s not in obs:
+            why.append(f"no {name} observations in its RANGECMPB")
+            todo.append(f"let {rover} track {name}")
+        if s not in base:
+            why.append(f"no {name} observations in the base corrections")
+            todo.append(f"log {BASE_MSM[s]} on the base")
+        if why:
+            notes.append(f"{rover}: {' and '.join(why)}; {name} not used for {rover} — {' and '.join(todo)} "
+                         "(see examples/car-template.toml)")
+        else:
+            used.append(s)
+    return tuple(used), tuple(notes)
+
+
 def _read_pos(path: Path) -> npt.NDArray[np.float64]:
     """rnx2rtkp's default output (GPS week, TOW, lat, lon, h, Q, ns, sdn, sde, sdu, …, age, ratio) as rows."""
     rows: list[list[float]] = []
@@ -339,7 +424,7 @@ def run_ppk(
     timeout_s: float = DEFAULT_TIMEOUT_S,
     elevation_mask_deg: float = ELEVATION_MASK_DEG,
     base: Path | str | None = None,
-    systems: Sequence[str] = SYSTEMS,
+    systems: Sequence[str] | None = None,
 ) -> PpkRun:
     """Run RTKLIB on each rover of a recorded session and write the side file (see the module docstring).
 
@@ -347,24 +432,36 @@ def run_ppk(
     directory removed afterwards. ``base``: the base's own observations (RINEX 3 obs, or an RTCM3 file with
     1005/1006) instead of the recorded relayed corrections, for a dropout of the link that fed the relay
     itself (the base's internal log, or a reference station's file). ``systems``: RINEX letters of the satellite
-    systems to solve with (default GPS and GLONASS; ``("G",)`` for GPS only).
+    systems to solve with; None: :data:`SYSTEMS` (GPS and GLONASS), each used per rover where the session has
+    its observations and ephemerides, a missing one a warning (:attr:`PpkRun.warnings`). Given explicitly
+    (``("G", "R")``, ``("G",)`` for GPS only), a system that no rover can use is an error instead; one that only
+    some rovers lack is a warning, and those rovers are solved without it.
 
     Raises:
         RtklibMissingError: ``convbin`` / ``rnx2rtkp`` not on PATH.
-        AnalysisError: a rover without RANGECMP or GPSEPHEM logs (the message says what to log), no base
-            position in the corrections, an unknown rover or satellite system, or an RTKLIB call that failed or
-            timed out.
+        AnalysisError: a rover without RANGECMP or GPSEPHEM logs (the message says what to log), a system asked
+            for explicitly that no rover can use, no base position in the corrections, an unknown rover or
+            satellite system, or an RTKLIB call that failed or timed out.
         SessionFileError: the session cannot be read or the side file cannot be written.
     """
+    import json
+
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     from rig.export import ExportKind, export_raw_gnss
 
-    bad = [s for s in systems if s not in _NAVSYS]
-    if bad or not systems:
+    explicit = systems is not None
+    asked = tuple(dict.fromkeys(systems)) if systems is not None else SYSTEMS
+    bad = [s for s in asked if s not in _NAVSYS]
+    if bad or not asked:
         raise AnalysisError(f"unknown satellite system {', '.join(bad) or '(none given)'}: use the RINEX letters "
-                            f"{', '.join(_NAVSYS)}")
+                            f"{', '.join(SYSTEM_NAMES)}")
+    other = [s for s in asked if s not in SYSTEM_NAMES]
+    if other:
+        raise AnalysisError(f"satellite system {', '.join(f'{s} ({_OTHER_SYSTEMS[s]})' for s in other)} is not "
+                            "supported by rig ppk: it writes navigation data from GPSEPHEMB (G) and GLOEPHEMERISB (R) "
+                            "only")
     tools = _tools()
     session = Path(session_path)
     known, leap = _rovers_of(session)
@@ -391,15 +488,22 @@ def run_ppk(
                                 "(or give the base's own observations with --base FILE)")
         streams = {r: _scan_rover(wd / "raw" / f"{r}.gps", r) if (wd / "raw" / f"{r}.gps").exists() else None
                    for r in chosen}
+        lacking: dict[str, list[str]] = {}
         for r, st in streams.items():
             todo = []
             if st is None or st.rangecmp == 0:
                 todo.append("RANGECMPB ONTIME 0.05")
-            if st is None or not st.ephemerides:
+            if "G" in asked and (st is None or not st.ephemerides):
                 todo.append("GPSEPHEMB ONCHANGED")
             if todo:
-                raise AnalysisError(f"{session}: rover {r} has no {' and no '.join(t.split()[0] for t in todo)} in the "
-                                    f"recording: log {' and '.join(todo)} on {r} (raw observations and ephemerides)")
+                lacking[r] = todo
+        if lacking:
+            what = "; ".join(f"rover {r} has no {' and no '.join(t.split()[0] for t in todo)}"
+                             for r, todo in lacking.items())
+            logs = "; ".join(f"log {' and '.join(todo)} on {r}" for r, todo in lacking.items())
+            head = ("no raw observations (RANGECMPB) from any rover, nothing to post-process: "
+                    if len(chosen) > 1 and all(st is None or st.rangecmp == 0 for st in streams.values()) else "")
+            raise AnalysisError(f"{session}: {head}{what} in the recording: {logs} (raw observations and ephemerides)")
         first = min(st.first_gps_ns for st in streams.values() if st is not None and st.first_gps_ns is not None)
         t_approx = _GPS_EPOCH + dt.timedelta(microseconds=first // 1000)
         if _is_rinex_obs(corrections[0]):
@@ -413,26 +517,51 @@ def run_ppk(
         if base_xyz is None:
             raise AnalysisError(f"{corrections[0]}: no base position (RTCM 1005/1006, or a RINEX APPROX POSITION XYZ): "
                                 "log RTCM1006 on the base")
-        conf = wd / "rnx2rtkp.conf"
-        # -k resets the output options to the options file's defaults: keep rnx2rtkp's own (GPS week + TOW)
-        conf.write_text(f"pos1-navsys       ={sum(_NAVSYS[s] for s in set(systems))}\n"
-                        "pos2-gloarmode    =on\n"
-                        "out-timeform      =tow\n"
-                        "out-timendec      =3\n")
+        base_systems = _rinex_obs_systems(base_obs, asked)
+        # each rover's systems, decided before anything is solved
+        plan: dict[str, tuple[str, ...]] = {}
+        for r in chosen:
+            st = streams[r]
+            assert st is not None
+            obs = wd / f"{r}.obs"
+            _run([tools["convbin"], "-r", "nov", "-v", "3.04", "-o", str(obs), str(wd / "raw" / f"{r}.gps")],
+                 f"rover {r} to RINEX", timeout_s, wd)
+            eph = {"G"} if st.ephemerides else set()
+            if st.glonass:
+                eph.add("R")
+            used, notes = usable_systems(r, asked, rover_obs=_rinex_obs_systems(obs, asked), ephemerides=eph,
+                                         base_obs=base_systems)
+            plan[r] = used
+            warnings.extend(notes)
+        nowhere = [s for s in asked if not any(s in used for used in plan.values())]
+        stuck = [r for r, used in plan.items() if not used]
+        if (explicit and nowhere) or stuck:
+            names = [SYSTEM_NAMES[s] for s in nowhere]
+            lost = f"{' and '.join(names)} asked for (--systems {','.join(asked)}) but usable for no rover" if (
+                explicit and nowhere) else f"no satellite system to solve {', '.join(stuck)} with"
+            rest = [s for s in asked if s not in nowhere]
+            hint = f"; solve without it: --systems {','.join(rest)}" if explicit and nowhere and rest else ""
+            raise AnalysisError(f"{session}: {lost}: {'; '.join(w for w in warnings if w not in report.warnings)}"
+                                f"{hint}")
         tables = []
         results = []
         for r in chosen:
             st = streams[r]
             assert st is not None
+            used = plan[r]
+            conf = wd / f"{r}.conf"
+            # -k resets the output options to the options file's defaults: keep rnx2rtkp's own (GPS week + TOW)
+            conf.write_text(f"pos1-navsys       ={sum(_NAVSYS[s] for s in used)}\n"
+                            "pos2-gloarmode    =on\n"
+                            "out-timeform      =tow\n"
+                            "out-timendec      =3\n")
             nav = wd / f"{r}.nav"
-            glo = st.glonass if "R" in systems else ()
-            write_rinex_nav(st.ephemerides, nav, glo)
+            glo = st.glonass if "R" in used else ()
+            write_rinex_nav(st.ephemerides if "G" in used else (), nav, glo)
             obs = wd / f"{r}.obs"
-            _run([tools["convbin"], "-r", "nov", "-v", "3.04", "-o", str(obs), str(wd / "raw" / f"{r}.gps")],
-                 f"rover {r} to RINEX", timeout_s, wd)
             pos = wd / f"{r}.pos"
             _run([tools["rnx2rtkp"], "-k", str(conf), "-p", "2", "-c", "-f", "2", "-m", f"{elevation_mask_deg:g}",
-                  "-sys", ",".join(systems),
+                  "-sys", ",".join(used),
                   "-r", *(f"{v:.4f}" for v in base_xyz), "-o", str(pos), str(obs), str(base_obs), str(nav)],
                  f"rover {r} PPK", timeout_s, wd)
             rows = _read_pos(pos)
@@ -448,8 +577,14 @@ def run_ppk(
                 "sdn_m": rows[:, 7], "sde_m": rows[:, 8], "sdu_m": rows[:, 9], "ratio": rows[:, 14],
             }))
             results.append(PpkRover(r, len(rows), int(np.count_nonzero(q == PpkQuality.FIX)), st.rangecmp,
-                                    float(np.median(rows[:, 6])) if len(rows) else 0.0, len(glo)))
+                                    float(np.median(rows[:, 6])) if len(rows) else 0.0, len(glo), used))
+        meta = {"systems_asked": list(asked), "systems_explicit": explicit,
+                "rovers": {p.rover: {"systems": list(p.systems), "glonass_ephemerides": p.glonass_ephemerides}
+                           for p in results},
+                "warnings": warnings}
         table = pa.concat_tables(tables)
+        table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                               PPK_METADATA_KEY: json.dumps(meta).encode()})
         try:
             target.parent.mkdir(parents=True, exist_ok=True)
             tmp_out = target.with_name(target.name + ".tmp")
@@ -474,6 +609,9 @@ class PpkSolutions:
     sde_m: npt.NDArray[np.float64]
     sdu_m: npt.NDArray[np.float64]
     ratio: npt.NDArray[np.float64]
+    systems: tuple[str, ...] = ()
+    """The satellite systems this rover was solved with (from the side file's metadata; () in files written
+    before it was recorded)."""
 
     @property
     def fixed(self) -> npt.NDArray[np.bool_]:
@@ -498,6 +636,9 @@ def read_ppk_file(path: Path | str) -> dict[str, PpkSolutions]:
     missing = [c for c in PPK_COLUMNS if c not in tbl.column_names]
     if missing:
         raise SessionFileError(f"{p}: PPK side file lacks the columns {', '.join(missing)}")
+    rovers_meta = ppk_metadata(tbl.schema.metadata, p).get("rovers", {})
+    used = {str(r): tuple(str(s) for s in v.get("systems", ())) for r, v in rovers_meta.items()
+            if isinstance(v, dict)} if isinstance(rovers_meta, dict) else {}
     cols = {c: tbl.column(c).to_numpy() for c in PPK_COLUMNS}
     out: dict[str, PpkSolutions] = {}
     for r in sorted(set(cols["rover"].tolist())):
@@ -510,5 +651,26 @@ def read_ppk_file(path: Path | str) -> dict[str, PpkSolutions]:
         out[str(r)] = PpkSolutions(str(r), col("gps_time_ns", np.int64), col("lat_deg", np.float64),
                                    col("lon_deg", np.float64), col("height_m", np.float64), col("q", np.int8),
                                    col("sdn_m", np.float64), col("sde_m", np.float64), col("sdu_m", np.float64),
-                                   col("ratio", np.float64))
+                                   col("ratio", np.float64), used.get(str(r), ()))
     return out
+
+
+def ppk_metadata(metadata: dict[bytes, bytes] | None, path: Path | str = "side file") -> dict[str, Any]:
+    """The side file's ``rig.ppk`` metadata (:data:`PPK_METADATA_KEY`) as a dict ({} when the file has none:
+    written before the systems were recorded).
+
+    Raises:
+        SessionFileError: the metadata is not a JSON object.
+    """
+    import json
+
+    raw = (metadata or {}).get(PPK_METADATA_KEY)
+    if raw is None:
+        return {}
+    try:
+        meta = json.loads(raw)
+    except ValueError as exc:
+        raise SessionFileError(f"{path}: unreadable {PPK_METADATA_KEY.decode()} metadata: {exc}") from exc
+    if not isinstance(meta, dict):
+        raise SessionFileError(f"{path}: {PPK_METADATA_KEY.decode()} metadata is not a JSON object")
+    return meta

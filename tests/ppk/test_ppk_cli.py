@@ -1,4 +1,5 @@
-"""``rig ppk`` on a short recorded session: per-rover runs, the side file, and its errors."""
+"""``rig ppk`` on a short recorded session: per-rover runs, the side file, the systems each rover is solved with,
+and its errors."""
 
 from __future__ import annotations
 
@@ -15,8 +16,19 @@ import pytest
 from typer.testing import CliRunner
 
 from drivers.novatel.rawobs import GloEphemeris
-from rig.cli.main import app
-from rig.ppk import PPK_COLUMNS, PpkQuality, ppk_file_path, read_ppk_file, run_ppk, write_rinex_nav
+from rig.cli.main import app, main
+from rig.ppk import (
+    PPK_COLUMNS,
+    PPK_METADATA_KEY,
+    PpkQuality,
+    ppk_file_path,
+    ppk_metadata,
+    read_ppk_file,
+    run_ppk,
+    usable_systems,
+    write_rinex_nav,
+)
+from tests.ppk.filtered import copy_without_logs
 from vsccore.errors import AnalysisError
 
 pytestmark = pytest.mark.skipif(shutil.which("rnx2rtkp") is None or shutil.which("convbin") is None,
@@ -26,8 +38,11 @@ A_LOGS = [{"name": "BESTPOSB", "period_s": 0.05}, {"name": "BESTVELB", "period_s
           {"name": "TIMEB", "period_s": 1.0}, {"name": "RANGECMPB", "period_s": 0.2},
           {"name": "GPSEPHEMB", "trigger": "onchanged"}, {"name": "GLOEPHEMERISB", "trigger": "onchanged"}]
 B_LOGS = [{"name": "BESTPOSB", "period_s": 0.05}, {"name": "BESTVELB", "period_s": 0.05},
-          {"name": "TIMEB", "period_s": 1.0}]
-"""Rover B logs no raw observations and no ephemerides."""
+          {"name": "TIMEB", "period_s": 1.0}, {"name": "RANGECMPB", "period_s": 0.2},
+          {"name": "GPSEPHEMB", "trigger": "onchanged"}]
+"""Rover B logs raw observations and GPS ephemerides, no GLOEPHEMERISB (a configuration from before GLONASS)."""
+NO_GLO_B = ("rover_b: no GLOEPHEMERISB in the session; GLONASS not used for rover_b — log GLOEPHEMERISB ONCHANGED on "
+            "rover_b (see examples/car-template.toml)")
 
 
 @pytest.fixture(scope="module")
@@ -74,12 +89,139 @@ def _rig(*args: str, path: str | None = None) -> subprocess.CompletedProcess[str
                           env=env, check=False)
 
 
-def test_ppk_names_the_logs_a_rover_lacks(session: Path) -> None:
-    res = _rig("ppk", str(session))
-    assert res.returncode == 2, res.stderr
-    assert "rig: error: " in res.stderr
-    assert "log RANGECMPB ONTIME 0.05 and GPSEPHEMB ONCHANGED on rover_b" in res.stderr
-    assert not ppk_file_path(session).exists()
+def _main(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
+    """``rig ARGS`` in this process (exit status, stdout, stderr): the CLI's error handling without a new Python."""
+    capsys.readouterr()
+    try:
+        main([*args])
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_ppk_names_the_logs_a_rover_lacks(session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    copy, removed = copy_without_logs(session, tmp_path / "nob", {"rover_b": {"RANGECMP", "GPSEPHEM"}})
+    assert removed["rover_b"] > 0
+    code, _out, err = _main(capsys, "ppk", str(copy))
+    assert code == 2, err
+    assert "rig: error: " in err
+    assert "rover rover_b has no RANGECMPB and no GPSEPHEMB in the recording" in err
+    assert "log RANGECMPB ONTIME 0.05 and GPSEPHEMB ONCHANGED on rover_b" in err and "rover_a" not in err
+    assert not ppk_file_path(copy).exists()
+
+
+def test_ppk_on_a_session_without_any_rangecmp(session: Path, tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """No rover logged raw observations: a clear error (exit 2) naming every rover and the log, no side file."""
+    copy, removed = copy_without_logs(session, tmp_path / "norange", {"rover_a": {"RANGECMP"},
+                                                                      "rover_b": {"RANGECMP"}})
+    assert min(removed.values()) > 0
+    code, out, err = _main(capsys, "ppk", str(copy))
+    assert code == 2, err
+    assert out == ""
+    assert err.startswith(f"rig: error: {copy}: no raw observations (RANGECMPB) from any rover, nothing to "
+                          "post-process: rover rover_a has no RANGECMPB; rover rover_b has no RANGECMPB"), err
+    assert "log RANGECMPB ONTIME 0.05 on rover_a; log RANGECMPB ONTIME 0.05 on rover_b" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not ppk_file_path(copy).exists()
+
+
+def _nav_satellites(path: Path) -> set[str]:
+    return {ln[:3] for ln in path.read_text().splitlines() if ln[:1] in "GR" and ln[1:3].isdigit()}
+
+
+def test_ppk_default_solves_a_rover_without_gloephemeris_with_gps_and_says_so(
+        session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Default systems: rover_a (GLOEPHEMERISB logged) with GPS + GLONASS, rover_b (GPSEPHEMB only) with GPS alone,
+    a warning naming rover_b, GLONASS and the log, and the systems of each rover in the output and the side file."""
+    out = tmp_path / "both.parquet"
+    code, stdout, err = _main(capsys, "ppk", str(session), "--out", str(out), "--keep", str(tmp_path / "w"))
+    assert code == 0, err
+    assert err.splitlines() == [f"warning: {NO_GLO_B}"]
+    assert "rover_a: fix ratio " in stdout and "GPS + GLONASS, " in stdout.split("rover_a:")[1].splitlines()[0]
+    line_b = stdout.split("rover_b:")[1].splitlines()[0]
+    assert "GPS only, 0 GLONASS ephemerides)" in line_b, stdout
+    sols = read_ppk_file(out)
+    assert sols["rover_a"].systems == ("G", "R") and sols["rover_b"].systems == ("G",)
+    assert sols["rover_b"].fixed.mean() >= 0.9
+    meta = ppk_metadata(pq.read_schema(out).metadata)
+    assert meta["systems_asked"] == ["G", "R"] and meta["systems_explicit"] is False
+    assert meta["rovers"]["rover_b"] == {"systems": ["G"], "glonass_ephemerides": 0}
+    assert meta["rovers"]["rover_a"]["glonass_ephemerides"] >= 5
+    assert meta["warnings"] == [NO_GLO_B]
+    # RTKLIB got for rover_b what it was told: GPS only in the navigation file and the options
+    w = tmp_path / "w"
+    assert {s[0] for s in _nav_satellites(w / "rover_b.nav")} == {"G"}
+    assert {s[0] for s in _nav_satellites(w / "rover_a.nav")} == {"G", "R"}
+    assert "pos1-navsys       =1\n" in (w / "rover_b.conf").read_text()
+    assert "pos1-navsys       =5\n" in (w / "rover_a.conf").read_text()
+    assert PPK_METADATA_KEY in (pq.read_schema(out).metadata or {})
+
+
+def test_ppk_of_a_copy_without_gloephemeris(session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A copy of the session with every GLOEPHEMERIS log removed (an older recording): by default a warning per rover
+    and the GPS-only solution (the same as --systems G on the original); --systems G,R asked explicitly cannot be
+    met by any rover: exit 2, naming why and what to run instead, and no side file."""
+    copy, removed = copy_without_logs(session, tmp_path / "noglo", {"rover_a": {"GLOEPHEMERIS"}})
+    assert removed["rover_a"] > 0
+    res = run_ppk(copy, rovers=["rover_a"], out=tmp_path / "copy.parquet")
+    assert res.warnings == (NO_GLO_B.replace("rover_b", "rover_a"),)
+    (r,) = res.rovers
+    assert r.systems == ("G",) and r.glonass_ephemerides == 0 and r.systems_text == "GPS only"
+    gps = run_ppk(session, rovers=["rover_a"], out=tmp_path / "gps.parquet", systems=("G",))
+    assert gps.warnings == ()
+    got, expect = read_ppk_file(res.out)["rover_a"], read_ppk_file(gps.out)["rover_a"]
+    np.testing.assert_array_equal(got.gps_time_ns, expect.gps_time_ns)
+    np.testing.assert_array_equal(got.q, expect.q)
+    np.testing.assert_allclose(got.lat_deg, expect.lat_deg, rtol=0, atol=1e-9)
+    assert got.fixed.mean() >= 0.9
+
+    target = tmp_path / "explicit.parquet"
+    code, out, err = _main(capsys, "ppk", str(copy), "--systems", "G,R", "--out", str(target))
+    assert code == 2, err
+    assert out == "" and len(err.strip().splitlines()) == 1
+    assert err.startswith(f"rig: error: {copy}: GLONASS asked for (--systems G,R) but usable for no rover: "), err
+    assert NO_GLO_B in err and NO_GLO_B.replace("rover_b", "rover_a") in err
+    assert err.rstrip().endswith("solve without it: --systems G")
+    assert not target.exists()
+
+
+def test_ppk_explicit_glonass_on_a_session_where_one_rover_has_it(session: Path, tmp_path: Path) -> None:
+    """--systems G,R where rover_a can use GLONASS and rover_b cannot: solved, rover_b with GPS and a warning; only
+    rover_b asked for explicitly with G,R: an error (GLONASS usable for no rover asked for)."""
+    res = run_ppk(session, out=tmp_path / "x.parquet", systems=("G", "R"))
+    assert res.warnings == (NO_GLO_B,)
+    assert {r.rover: r.systems for r in res.rovers} == {"rover_a": ("G", "R"), "rover_b": ("G",)}
+    assert ppk_metadata(pq.read_schema(res.out).metadata)["systems_explicit"] is True
+    with pytest.raises(AnalysisError, match=r"GLONASS asked for \(--systems G,R\) but usable for no rover: rover_b: "
+                                            r"no GLOEPHEMERISB"):
+        run_ppk(session, rovers=["rover_b"], out=tmp_path / "y.parquet", systems=("G", "R"))
+    assert not (tmp_path / "y.parquet").exists()
+
+
+def test_usable_systems_names_each_missing_input() -> None:
+    """A system is used only with the rover's observations, its ephemerides and the base's observations."""
+    assert usable_systems("rover_a", ("G", "R"), rover_obs="GR", ephemerides="GR", base_obs="GR") == (("G", "R"), ())
+    used, notes = usable_systems("rover_a", ("G", "R"), rover_obs="G", ephemerides="GR", base_obs="G")
+    assert used == ("G",)
+    assert notes == (("rover_a: no GLONASS observations in its RANGECMPB and no GLONASS observations in the base "
+                      "corrections; GLONASS not used for rover_a — let rover_a track GLONASS and log RTCM1087 on the "
+                      "base (see examples/car-template.toml)"),)
+    used, notes = usable_systems("rover_b", ("R",), rover_obs="GR", ephemerides="G", base_obs="GR")
+    assert used == () and notes == (NO_GLO_B,)
+
+
+def test_ppk_side_file_without_systems_metadata(tmp_path: Path) -> None:
+    """A side file written before the systems were recorded still reads (systems unknown: ())."""
+    import pyarrow as pa
+
+    cols: dict[str, object] = {c: [0.0] for c in PPK_COLUMNS}
+    cols.update(rover=["rover_a"], gps_time_ns=[1], time_ns=[1], q=[1], ns=[9])
+    pq.write_table(pa.table(cols), tmp_path / "old.parquet")
+    assert read_ppk_file(tmp_path / "old.parquet")["rover_a"].systems == ()
+    assert ppk_metadata(None) == {}
 
 
 def test_ppk_unknown_rover(session: Path) -> None:
@@ -116,7 +258,8 @@ def test_base_position_is_the_reference_point_raised_by_the_antenna_height(tmp_p
     assert _approx_position(obs) is None  # no position in the corrections
 
 
-def test_ppk_with_the_bases_own_observations(session: Path, tmp_path: Path) -> None:
+def test_ppk_with_the_bases_own_observations(session: Path, tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
     """--base: RINEX obs or RTCM3 of the base (its own log, a reference station) instead of the relayed stream."""
     from vsccore.errors import SessionFileError
 
@@ -125,9 +268,9 @@ def test_ppk_with_the_bases_own_observations(session: Path, tmp_path: Path) -> N
     shutil.copy(tmp_path / "w" / "raw" / "corrections.rtcm3", tmp_path / "site.rtcm3")
     expect = read_ppk_file(ref.out)["rover_a"]
     for name in ("site.obs", "site.rtcm3"):
-        res = _rig("ppk", str(session), "--rover", "rover_a", "--base", str(tmp_path / name),
-                   "--out", str(tmp_path / f"{name}.parquet"))
-        assert res.returncode == 0, res.stderr
+        code, _out, err = _main(capsys, "ppk", str(session), "--rover", "rover_a", "--base", str(tmp_path / name),
+                                "--out", str(tmp_path / f"{name}.parquet"))
+        assert code == 0, err
         got = read_ppk_file(tmp_path / f"{name}.parquet")["rover_a"]
         np.testing.assert_array_equal(got.gps_time_ns, expect.gps_time_ns)
         np.testing.assert_array_equal(got.q, expect.q)
@@ -213,6 +356,8 @@ def test_rinex_nav_glonass_record(tmp_path: Path) -> None:
 def test_ppk_unknown_system_is_refused(session: Path) -> None:
     with pytest.raises(AnalysisError, match="unknown satellite system X"):
         run_ppk(session, rovers=["rover_a"], systems=("G", "X"))
+    with pytest.raises(AnalysisError, match=r"satellite system E \(Galileo\) is not supported by rig ppk"):
+        run_ppk(session, rovers=["rover_a"], systems=("G", "E"))
 
 
 def _nav_records(path: Path, system: str) -> dict[tuple[str, str], list[float]]:
