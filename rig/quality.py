@@ -12,11 +12,12 @@ The figures (each judged by :data:`THRESHOLDS`, the one place the limits live):
 - ``timing_error_ms`` (CAN, DAQ): how far a sample's time on the common base can be off. For a
   stream with device stamps it is the map error bound of the device clock
   (:meth:`rig.timebase.ClockEstimator.map_error_ns`) plus that of the host → GPS map it is composed
-  with, plus :data:`FLOOR_ALLOWANCE_MS`; for a stream stamped only by the host it is the host arrival
-  lag itself (p95: there a late stamp *is* a wrong time) plus the host map's bound and the allowance;
-  for a DAQ aligned by sync pulses it is the alignment's RMS residual.
-- ``host_map_error_ms`` (GNSS reference receiver): the host → GPS map's bound plus
-  :data:`FLOOR_ALLOWANCE_MS`. GNSS data carry their own GPS time, so this figure only degrades the
+  with (which includes :data:`FLOOR_ALLOWANCE_MS` and the causality bound); for a stream stamped only by
+  the host it is the host arrival lag itself (p95: there a late stamp *is* a wrong time) plus the host
+  map's figure; for a DAQ aligned by sync pulses it is the alignment's RMS residual.
+- ``host_map_error_ms`` (GNSS reference receiver): the host → GPS map's floor bound plus
+  :data:`FLOOR_ALLOWANCE_MS` plus the DAQ's causality bound of the map (:func:`daq_causality_ns`;
+  0 when causality holds). GNSS data carry their own GPS time, so this figure only degrades the
   receiver's verdict; it is added into the host-timed streams' timing error, where it does harm.
 - ``missing_percent``: stalls (a silence longer than :data:`STALL_FACTOR` × the stream's own median
   period, and at least :data:`MIN_STALL_S`) and an early end (the stream stops more than
@@ -41,6 +42,21 @@ covers both: ``|error| ≤ h_CAN + h_host + FLOOR_ALLOWANCE_MS``, and the figure
 at most the allowance plus the floors' own wander. A frame that was merely late (a descheduled
 reader, a burst) is latency: shorter than a window, it moves no figure.
 
+The host map's ``ε`` is not left to the allowance alone where a clock the map does not enter shows
+it: causality. A DAQ block's samples are timed by the sync pulse against MARKTIME (GPS time, no host
+clock), and the block cannot reach the host before its last sample was taken; mapped through the
+host → GPS map, a block that arrives *earlier* than that sample shows the map early by at least the
+difference (``ε ≥ c``, ``c`` = :func:`daq_causality_ns`; ``ε = c + d`` with ``d`` the most prompt
+block's delivery latency). A constant lateness of every GNSS pair (a wrong
+``receivers.N.output_latency_s``, a USB-serial latency timer, receivers writing late on the
+free-running simulated clock) shifts the map and its pairs alike and only this shows it. With the
+allowance now standing for ``d`` (how late the most prompt DAQ block of 10 s still was, as it stood
+for the most prompt GNSS log), ``ε ≤ c + FLOOR_ALLOWANCE_MS`` and the host map's figure is
+``h_host + FLOOR_ALLOWANCE_MS + c`` — the old figure where causality holds (``c = 0``), and where it
+does not, a figure that exceeds the truth by ``h_host + FLOOR_ALLOWANCE_MS − d`` (it falls short only
+by what the DAQ's prompt delivery exceeds the floors and the allowance). ``c`` is robust to wild
+stamps: it must be held by three half-seconds within 10 s (:func:`rig.timebase.causality_bound_ns`).
+
 Measured against the simulator's truth (``benchmarks/study_timebase_gate.py`` and
 ``tests/quality/test_map_error.py``; CAN figure / true max error): governed at 1×, 0.20 / 0.11 ms
 (host map 0.20 / 0.18 ms); governed at 8×, 0.27–0.61 ms / ≤ 0.14 ms in six runs, where the previous
@@ -48,12 +64,22 @@ figure — the 95th percentile per second of the lowest pair's height, which rea
 frames were all late as map error — gave 0.50–1.21 ms (degraded in two of the six; 1.03–1.34 ms on
 stressed demo runs whose true error was ≤ 42 µs); a starved reader 1623 ms / 2.3 ms, unusable (its
 floor rose by seconds: a backlog and a runaway clock look alike, and the stream also ended early).
-What no gate can see is a constant latency beyond the allowance: a wrong
-``receivers.N.output_latency_s``, a USB-serial latency timer, or the simulated receivers writing
-late on the free-running clock under load — 1.1–2.5 ms of constant offset, true CAN error 1.6–2.8
-ms, figure 0.51–0.63 ms (good). The previous figure was not a bound there either (1.70–1.97 ms); it
-rated those sessions degraded through the latency's scatter, not the offset. The DAQ's sync-pulse
-RMS (≤ 1 µs) sits beside a true error of 1–3 µs.
+A constant latency beyond the allowance — the simulated receivers writing late on the free-running
+clock under load, 1.1–2.5 ms of constant offset, true CAN error 1.6–2.8 ms — was rated good at
+0.51–0.63 ms before the causality bound (H31) and is now seen by it. Free-running at 1× (load
+average 11–17 on 2 cores): causality 3.43 ms against a host map 3.62 ms early (median; at most
+4.13), CAN figure 4.37 / true 4.06 ms, degraded (the floor bound alone: 0.94 ms, good); starved:
+causality 6.20 ms, host map 6.83 ms early. The reference receiver's output latency configured 2 ms
+short on the governed clock: causality 1.43 ms at 1× and 1.91–1.93 ms at 8×, CAN figure 1.64 / true
+2.02 ms at 1× and 2.41–2.45 / 2.02–2.07 ms at 8× (the recorder's own verdicts the same), degraded,
+where the floor bound alone gave 0.21–0.82 ms (good). The shortfall is the DAQ's prompt delivery
+latency, which the simulated clock scales with its speed: at 8× under a load average of 15–25 it
+reached 1.0 ms of simulated time (causality 0.98 ms for a 2 ms offset, 1.97 ms for 3 ms; CAN
+figures 1.47 / 2.01 and 2.35 / 3.03 ms, still degraded). Governed and correctly configured: causality
+0 at 1×, 0.05 ms at 8× (that host map is 0.1 ms early: inside the allowance), so those figures
+barely move. A session without a synchronised DAQ (no sync channel, no MARKTIME) has no causality
+evidence and keeps the allowance alone. The DAQ's sync-pulse RMS (≤ 1 µs) sits beside a true error
+of 1–3 µs.
 
 Rationale of the limits: the reference smoother (:mod:`rig.analysis.reference`) propagates the
 heading between 20 Hz GNSS epochs (50 ms) with the CAN yaw rate, and its error budget asks for a
@@ -79,7 +105,7 @@ import numpy as np
 import numpy.typing as npt
 
 import rig.topics as T  # noqa: N812 - topics used as a namespace
-from rig.timebase import ClockEstimator
+from rig.timebase import ClockEstimator, causality_bound_ns
 from vsccore.errors import AnalysisError, RigError
 
 if TYPE_CHECKING:
@@ -99,6 +125,7 @@ __all__ = [
     "Verdict",
     "backward_steps",
     "check_inputs",
+    "daq_causality_ns",
     "ended_early",
     "find_gaps",
     "gate",
@@ -106,6 +133,7 @@ __all__ = [
     "info_lines",
     "input_streams",
     "judge",
+    "live_daq_causality_ns",
     "live_verdicts",
     "session_verdicts",
     "stall_threshold_ns",
@@ -123,7 +151,9 @@ MIN_STALL_S = 0.25
 FLOOR_ALLOWANCE_MS = 0.2
 """How late the most prompt pair of 5 s of a clock may still be, beyond the latency the configuration
 states (output latency, serial transmission time): a read on a host that is not starved. No statistic
-of the pairs can see it (module docstring); the governed simulator measures 0.01–0.11 ms."""
+of the pairs can see it (module docstring); the governed simulator measures 0.01–0.11 ms. Where the
+DAQ's causality shows the host map early, it stands for the most prompt DAQ block's delivery latency
+on top of that bound instead."""
 END_TOLERANCE_S = 1.0
 """A stream that stops more than this before the session's last stream is a gap (the devices are
 stopped one after another, which takes well under a second)."""
@@ -378,15 +408,32 @@ def session_verdicts(ds: Session) -> dict[str, StreamQuality]:
     extra: dict[str, list[Figure]] = {}
     # host → GPS map (the reference receiver's envelope): its error goes into every host-timed stream
     host_dev_ms = math.nan
+    causal_ms = 0.0
+    host_fix = speed_fix
     ref = ds.host_clock
     if ref is not None:
         e = ref.map_error_ns()
         host_dev_ms = e / _MS if e is not None else math.nan
+        # the lateness of the map's own pairs that no statistic of them sees, shown by the DAQ's causality
+        causal: list[str] = []
+        for dev_name in ds.daq_devices():
+            b, why = daq_causality_ns(ds, dev_name)
+            if b is not None:
+                causal_ms = max(causal_ms, b / _MS)
+                causal.append(f"DAQ {dev_name} causality {b / _MS:.3g} ms")
+            else:
+                causal.append(f"DAQ {dev_name} causality not judged: {why}")
         rx = ref.name.removeprefix("gnss:")
+        if causal_ms > FLOOR_ALLOWANCE_MS:
+            host_fix = (f"{speed_fix}; or receiver {rx}'s logs leave later than its output_latency_s "
+                        f"([[receivers]]) states: the DAQ's blocks reach the host {causal_ms:.3g} ms before their "
+                        "last sample on its time base")
         if f"gnss:{rx}" in streams:
             extra.setdefault(f"gnss:{rx}", []).append(
-                judge("host_map_error_ms", host_dev_ms + FLOOR_ALLOWANCE_MS, speed_fix))
-    host_add = (0.0 if math.isnan(host_dev_ms) else host_dev_ms) + FLOOR_ALLOWANCE_MS
+                judge("host_map_error_ms", host_dev_ms + FLOOR_ALLOWANCE_MS + causal_ms, host_fix))
+            notes[f"gnss:{rx}"] = (f"host map: floor {host_dev_ms:.3g} ms + allowance {FLOOR_ALLOWANCE_MS:g} ms"
+                                   + "".join(f"; {c}" for c in causal))
+    host_add = (0.0 if math.isnan(host_dev_ms) else host_dev_ms) + FLOOR_ALLOWANCE_MS + causal_ms
     for bus in ds.can_buses():
         name = f"can:{bus}"
         s = streams[name] = _Stream(name)
@@ -407,13 +454,13 @@ def session_verdicts(ds: Session) -> dict[str, StreamQuality]:
             notes[name] = "interface stamps"
             if est is not None:
                 notes[name] += f", arrival lag p95 {_lag_p95_ns(est, dev, host) / _MS:.3g} ms"
-            extra.setdefault(name, []).append(judge("timing_error_ms", err, speed_fix))
+            extra.setdefault(name, []).append(judge("timing_error_ms", err, host_fix))
         else:
             lag = _host_arrival_lag_ms(frames.records)
             notes[name] = "host stamps only (no interface clock)"
             extra.setdefault(name, []).append(
                 judge("timing_error_ms", lag + host_add,
-                      "a CAN interface with hardware stamps (PCAN, Kvaser, Vector, SocketCAN); " + speed_fix))
+                      "a CAN interface with hardware stamps (PCAN, Kvaser, Vector, SocketCAN); " + host_fix))
     tb = ds.timebase_records()
     for dev_name in ds.daq_devices():
         name = f"daq:{dev_name}"
@@ -456,6 +503,74 @@ def session_verdicts(ds: Session) -> dict[str, StreamQuality]:
         out[name] = StreamQuality(name, tuple(figs), tuple(gaps), note)
     _CACHE[ds] = out
     return out
+
+
+def daq_causality_ns(ds: Session, device: str) -> tuple[float | None, str]:
+    """The causality bound of the host → GPS map from ``device``'s blocks (ns; None: not judged) and why not.
+
+    Each block's last sample is timed by the sync pulse against MARKTIME (GPS time; the host map does
+    not enter), and the block cannot reach the host before that sample was taken: where its host receive
+    time, mapped to GPS time, lies earlier, the map is early by at least that much
+    (:func:`rig.timebase.causality_bound_ns`). Only blocks whose segment is synchronised count.
+    """
+    daq_cfg = ds.config.get("daq")
+    if not isinstance(daq_cfg, Mapping) or not daq_cfg.get("sync_channel"):
+        return None, "no sync channel"
+    if daq_cfg.get("device") not in (None, device):
+        return None, "not the configured DAQ"
+    if ds.host_clock is None or ds.leap_seconds is None:
+        return None, "no host → GPS map"
+    marks = [r for r in ds.receivers() if len(ds.gnss(r).marktime) or len(ds.gnss(r).markpos)]
+    if not marks:
+        return None, "no MARKTIME/MARKPOS"
+    try:
+        d = ds.daq(device, sync_channel=str(daq_cfg["sync_channel"]), receiver=marks[0])
+        _first, last, host = ds.daq_blocks(device)
+    except RigError as exc:
+        return None, f"not judged ({exc})"
+    if not len(d):
+        return None, "no samples"
+    pos = np.minimum(np.searchsorted(d.sample_index, last), len(d) - 1)
+    ok = (d.sample_index[pos] == last) & d.synced[pos]
+    if not ok.any():
+        return None, "no block timed by the sync pulse"
+    arrival, mapped = ds.host_to_utc(host[ok])
+    if not mapped:
+        return None, "host map not on GPS time"
+    b = causality_bound_ns(d.time_ns[pos[ok]], arrival)
+    return b, "" if b is not None else "too few blocks"
+
+
+def live_daq_causality_ns(
+    block_pairs: tuple[npt.ArrayLike, npt.ArrayLike],
+    ns_per_sample: float,
+    segments: Sequence[tuple[int, Any]],
+    host_clock: ClockEstimator,
+) -> float | None:
+    """:func:`daq_causality_ns` in a recorder at finalize, from what it kept (ns; None: not judged).
+
+    ``block_pairs``: the DAQ clock's :meth:`~rig.timebase.ClockEstimator.floor_pairs` — per 0.5 s the most
+    prompt block as (its last sample's file index × ``ns_per_sample``, host receive ns); ``segments``:
+    (file index of the acquisition's index 0, its :class:`~rig.timebase.SyncFit` or None) per acquisition;
+    ``host_clock``: the reference receiver's GPS → host estimator (compared on GPS time).
+    """
+    dev = np.asarray(block_pairs[0], dtype=np.float64)
+    host = np.asarray(block_pairs[1], dtype=np.int64)
+    segs = sorted(((int(b), f) for b, f in segments), key=lambda bf: bf[0])
+    if dev.size == 0 or host_clock.n == 0 or all(f is None for _b, f in segs):
+        return None
+    idx = np.round(dev / ns_per_sample)
+    own = np.searchsorted(np.asarray([b for b, _f in segs], dtype=np.int64), idx, side="right") - 1
+    event = np.zeros(idx.size, dtype=np.int64)
+    ok = np.zeros(idx.size, dtype=bool)
+    for k, (_base, fit) in enumerate(segs):
+        m = own == k
+        if fit is not None and m.any():  # an acquisition not synchronised has no sync time
+            event[m] = fit.gps_ns(idx[m])
+            ok |= m
+    if not ok.any():
+        return None
+    return causality_bound_ns(event[ok], host_clock.mapping().inverse_ns(host[ok]))
 
 
 def _host_arrival_lag_ms(records: npt.NDArray[Any]) -> float:

@@ -65,7 +65,15 @@ from drivers.daq import DaqBlock, DaqEvent, DaqSession
 from drivers.novatel import BestPos
 from drivers.relay.endpoints import mask_credentials
 from rig.config import DaqConfig, ReceiverConfig, SessionConfig
-from rig.quality import FLOOR_ALLOWANCE_MS, Gap, StreamQuality, ended_early, live_verdicts, stream_of_topic
+from rig.quality import (
+    FLOOR_ALLOWANCE_MS,
+    Gap,
+    StreamQuality,
+    ended_early,
+    live_daq_causality_ns,
+    live_verdicts,
+    stream_of_topic,
+)
 from rig.recorder import Attachment, Recorder, RecorderOptions, RecordingSummary, Source, session_metadata
 from rig.session_devices import (
     CAN_BLOCK_AGE_NS,
@@ -524,7 +532,11 @@ class RecordSession:
         if ref is not None:
             e = tb.gnss_clock(ref).map_error_ns()
             if e is not None:
-                host_err[f"gnss:{ref}"] = e / 1e6 + FLOOR_ALLOWANCE_MS
+                # plus how early the map puts the DAQ blocks' arrivals before their sync-timed last samples
+                causal = None if self.daq is None else live_daq_causality_ns(
+                    tb.clock(self.daq.clock_name).floor_pairs(), self.daq.ns_per_sample,
+                    [(seg.base, seg.fit) for seg in list(self.daq.segments.values())], tb.gnss_clock(ref))
+                host_err[f"gnss:{ref}"] = (e + (causal or 0.0)) / 1e6 + FLOOR_ALLOWANCE_MS
         add = next(iter(host_err.values()), FLOOR_ALLOWANCE_MS)
         timing_err: dict[str, float] = {}
         for c in self.can:

@@ -18,6 +18,9 @@ Three estimators, one per kind of clock evidence:
   MARKTIME/MARKPOS GPS times of the same edges (missing and extra pulses on either side are
   tolerated), and sample index → GPS time is a least-squares fit of the matched pairs (per window
   for long sessions), which averages the per-edge location error down.
+- :func:`causality_bound_ns` — how early a map puts the arrivals of items timed on another clock (DAQ
+  blocks timed by the sync pulse): nothing arrives before it happened, so that is the map's error
+  no statistic of its own pairs can see (used by :mod:`rig.quality` for the host → GPS map).
 - :class:`Timebase` — the session's set of clocks: host → GPS through the reference receiver's
   mapping, CAN interface → host → GPS, GPS → UTC with the receiver-reported leap seconds, and the
   quality records (jitter, drift, residuals) written to ``/rig/timebase``.
@@ -48,6 +51,7 @@ __all__ = [
     "TimeStep",
     "Timebase",
     "align_sync_pulses",
+    "causality_bound_ns",
     "envelope_line",
 ]
 
@@ -604,6 +608,17 @@ class ClockEstimator:
             return None
         return float(fh[1].max()) if fh[1].size else None
 
+    def floor_pairs(self) -> tuple[IntArray, IntArray]:
+        """The lowest pair of every bin (``bin_s`` of device time) that holds pairs: (device ns, reference ns),
+        in device-time order. The most prompt message of each bin (empty arrays before any pair)."""
+        with self._lock:
+            x, y = self._points()
+            x0, base = self._x0, self._y_base
+        if x0 is None or x.size == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        dev = x0 + x.astype(np.int64)
+        return dev, dev + base + y.astype(np.int64)
+
     def quality(self, leap_seconds: int | None = None) -> ClockQuality:
         """The record for ``/rig/timebase``."""
         st = self.status()
@@ -627,6 +642,81 @@ class ClockEstimator:
             latency_p95_ns=float(np.percentile(res, 95)) if res.size else None,
             leap_seconds=leap_seconds,
         )
+
+
+# ---------------------------------------------------------------------------------------------
+# Causality: nothing arrives before it happened
+# ---------------------------------------------------------------------------------------------
+
+CAUSALITY_BIN_S = 0.5
+"""Bins of event time in which :func:`causality_bound_ns` keeps the most prompt item."""
+CAUSALITY_SPAN_S = 10.0
+"""The window of event time over which a causality violation must persist."""
+CAUSALITY_PERSIST = 3
+"""…shown by this many bins of the window (the ``CAUSALITY_PERSIST``-th largest bin maximum)."""
+
+
+def causality_bound_ns(
+    event_ns: npt.ArrayLike,
+    arrival_ns: npt.ArrayLike,
+    *,
+    bin_s: float = CAUSALITY_BIN_S,
+    span_s: float = CAUSALITY_SPAN_S,
+    persist: int = CAUSALITY_PERSIST,
+) -> float | None:
+    """How much too early a map puts the arrivals of items timed independently of it (ns, ≥ 0): a lower bound.
+
+    ``event_ns``: the latest true instant each item holds, on a time base the map under test does not
+    enter (a DAQ block's last sample timed by the sync pulse against MARKTIME, on GPS time);
+    ``arrival_ns``: when the host received the item, mapped through the map under test (the host →
+    GPS map) onto the same base. Nothing arrives before it happened, so ``arrival − event`` is the
+    item's delivery latency (≥ 0) plus the map's error there; where it is negative the map puts host
+    instants earlier than they were by at least ``event − arrival``. That is the error no statistic
+    of the map's own pairs can see: a constant lateness of every pair the map was fitted to (a
+    receiver that writes its logs late, a wrong configured output latency) shifts the map and its
+    pairs alike, and only evidence from outside them (here another clock's causality) shows it.
+
+    Robustness (one wild item must not condemn a session): per ``bin_s`` of event time the most
+    prompt item (largest ``event − arrival``) is kept; over every ``span_s`` window of event time (one
+    starting at each bin that holds items; the whole series when it is shorter) the bound is the
+    ``persist``-th largest of the window's bin maxima, and the figure is the largest over the windows,
+    0 when causality holds. A map error is a property of the map over its fitting windows (a
+    piecewise-linear fit over tens of seconds), so it shows in every bin whose item came through
+    promptly; a wrong stamp, a sample index that jumped or a host clock glitch shows in one bin. A
+    violation must therefore be held by ``persist`` bins within ``span_s``: fewer wild bins than that
+    in any window cost nothing, and under load, where most bins' items are late, a few prompt bins in
+    ``span_s`` still show the map's error (a low quantile of the latencies, not their floor, so the
+    figure stays a lower bound). None with fewer than ``persist`` bins.
+    """
+    ev = np.asarray(event_ns, dtype=np.int64).reshape(-1)
+    arr = np.asarray(arrival_ns, dtype=np.int64).reshape(-1)
+    if ev.shape != arr.shape:
+        raise ValueError(f"causality: {ev.size} event times but {arr.size} arrival times")
+    if persist < 1 or bin_s <= 0 or span_s < bin_s:
+        raise ValueError(f"causality: need persist >= 1 and span_s >= bin_s > 0, got {persist}, {bin_s}, {span_s}")
+    if ev.size == 0:
+        return None
+    bin_ns = int(bin_s * 1e9)
+    order = np.argsort(ev, kind="stable")
+    ev, early = ev[order], (ev - arr)[order].astype(np.float64)
+    key = (ev - ev[0]) // bin_ns
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    bkey, bmax = key[starts], np.maximum.reduceat(early, starts)
+    if bkey.size < persist:
+        return None
+    k = max(1, round(span_s / bin_s))
+    # one window from each bin that holds items (whole windows only; one over everything when shorter)
+    first = np.flatnonzero(bkey + k - 1 <= bkey[-1])
+    if first.size == 0:
+        first = np.zeros(1, dtype=np.int64)
+        k = int(bkey[-1]) + 1
+    pos = first[:, None] + np.arange(k)[None, :]  # bins are unique and ascending: a window holds at most k
+    idx = np.minimum(pos, bkey.size - 1)
+    inside = (pos < bkey.size) & (bkey[idx] < (bkey[first] + k)[:, None])
+    held = np.sort(np.where(inside, bmax[idx], -np.inf), axis=1)[:, -min(persist, k)]
+    if persist > k or not np.isfinite(held).any():
+        return None  # no window can hold ``persist`` bins: not judged
+    return max(0.0, float(held.max()))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -850,6 +850,18 @@ class Session:
     def daq_devices(self) -> list[str]:
         return sorted(_spec(t)[1]["device"] for t in self._counts if t.startswith("/daq/"))
 
+    def daq_blocks(self, device: str) -> tuple[IntArray, IntArray, IntArray]:
+        """(first sample index, last sample index, host receive ns) of every block of ``device``, in file order
+        (the file's sample indices, as :meth:`daq` joins them; used by :mod:`rig.quality`'s causality check)."""
+        _log, pub_t, data = self._messages(T.daq_samples(device))
+        try:
+            heads = [T.unpack_daq_block(d) for d in data]
+        except DecodeError as exc:
+            raise SessionFileError(f"{self.path}: {T.daq_samples(device)}: {exc}") from exc
+        first = np.asarray([b.first_sample_index for b in heads], dtype=np.int64)
+        n = np.asarray([b.samples.shape[1] for b in heads], dtype=np.int64)
+        return first, first + n - 1, pub_t
+
     def daq(
         self,
         device: str,

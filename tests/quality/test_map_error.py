@@ -11,6 +11,7 @@ all late as map error and refused good sessions.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -19,12 +20,22 @@ import pytest
 from rig.config import load_session as load_config
 from rig.dataset import Session, load_session
 from rig.demo import demo_config_path
-from rig.quality import FLOOR_ALLOWANCE_MS, THRESHOLDS, Figure, StreamQuality, Verdict, session_verdicts
+from rig.quality import (
+    FLOOR_ALLOWANCE_MS,
+    THRESHOLDS,
+    Figure,
+    StreamQuality,
+    Verdict,
+    daq_causality_ns,
+    session_verdicts,
+)
 from rig.simworld import record_simulated
-from rig.timebase import ClockEstimator
+from rig.timebase import ClockEstimator, causality_bound_ns
+from rig.topics import EventKind
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle.scenarios import make_scenario
 from tests.quality.synth import rewrite
+from vsccore.gpstime import gps_ns_to_unix_ns
 
 IntArray = npt.NDArray[np.int64]
 MS = 1_000_000
@@ -217,3 +228,129 @@ def test_a_3_ms_interface_clock_step_for_20_s_is_rated_at_3_ms(governed: Path, t
     assert abs(fig - STEP_NS / MS) <= host_fig
     assert judged(can, "timing_error_ms").verdict is Verdict.DEGRADED
     assert can.verdict is not Verdict.GOOD and "timing error" in can.message()
+
+
+# ---------------------------------------------------------------------------------------------
+# Causality: a constant lateness of the host map's own pairs (H31)
+# ---------------------------------------------------------------------------------------------
+
+LATE_NS = 3 * MS
+"""The receiver's configured output latency is this much shorter than its true one: every GNSS pair is late by
+it beyond what the time base takes off, so the host → GPS map puts host instants 3 ms early — the free-running
+simulator's receivers writing late, a wrong ``receivers.N.output_latency_s``: no statistic of the pairs sees it."""
+ABOVE_TOL_MS = 1.0
+"""Stated tolerance of the figure above the true error: it adds the floors' bounds and the 0.2 ms allowance to
+the causality bound (0.2–0.61 ms on governed 8× runs, 0.77 ms at a load average of 17 on 2 cores). Below the
+truth it falls short by at most the DAQ's own prompt delivery latency (0.1–1 ms of simulated time at 8×,
+depending on the host's load), which the test measures against the simulator's truth."""
+
+
+def _daq_blocks(seed: int = 7) -> tuple[IntArray, IntArray]:
+    """60 s of 10 Hz DAQ blocks: each block's last sample time and its host arrival (exponential latency, mean 1 ms)."""
+    rng = np.random.default_rng(seed)
+    last = np.arange(0, 60 * NS, 100 * MS, dtype=np.int64)
+    return last, last + rng.exponential(1 * MS, last.size).astype(np.int64)
+
+
+def test_causality_bound_is_the_map_early_by_less_the_prompt_delivery() -> None:
+    last, arrival = _daq_blocks()
+    assert causality_bound_ns(last, arrival) == 0.0  # a right map: every block arrives after its last sample
+    b = causality_bound_ns(last, arrival - LATE_NS)  # the map puts every arrival 2 ms early
+    assert b is not None and LATE_NS - 0.2 * MS <= b <= LATE_NS  # a lower bound, short by the prompt latency
+
+
+def test_one_wild_block_does_not_condemn_a_session() -> None:
+    """A block stamped 50 ms early (a host clock glitch, a sample index that jumped), then two more far apart:
+    each shows in one half-second, not in three within 10 s. Held in three half-seconds of 10 s it counts."""
+    last, arrival = _daq_blocks()
+    wild = arrival.copy()
+    wild[[100, 300, 500]] -= 50 * MS
+    assert causality_bound_ns(last, wild) == 0.0
+    wild[[105, 110]] -= 50 * MS  # 0.5 s and 1 s after the first: three bins of one window
+    b = causality_bound_ns(last, wild)
+    assert b is not None and b > 40 * MS  # 50 ms less the wild blocks' own delivery latency
+    assert causality_bound_ns(last[:8], arrival[:8]) is None  # two bins: not judged
+
+
+def _live_verdicts(ds: Session) -> dict[str, dict[str, Any]]:
+    """The verdicts the recorder wrote at the end of the recording (its ``timebase`` event)."""
+    evs = [e for _t, e in ds.events if e.kind is EventKind.TIMEBASE and "verdicts" in e.details]
+    assert len(evs) == 1
+    return dict(evs[0].details["verdicts"])
+
+
+def _live_figure(v: dict[str, dict[str, Any]], stream: str, name: str) -> tuple[float, str]:
+    f = v[stream]["figures"][name]
+    return float(f["value"]), str(f["verdict"])
+
+
+@pytest.fixture(scope="module")
+def late_receiver(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The governed 8× recording with the reference receiver's output latency configured 2 ms short of the
+    simulator's: a known constant offset of the host map, whatever the host's load."""
+    out = tmp_path_factory.mktemp("late_receiver")
+    cfg = load_config(demo_config_path())
+    i = next(k for k, r in enumerate(cfg.receivers) if r.name == "rover_a")
+    assert cfg.simulation is not None
+    stated = cfg.simulation.gnss.output_latency_s - LATE_NS / NS
+    cfg = load_config(demo_config_path(), {"simulation.speed": 8.0, "simulation.governed": True,
+                                           f"receivers.{i}.output_latency_s": stated})
+    rec = record_simulated(cfg, out, name="late", drive=make_scenario("straight", speed_kmh=50.0, duration_s=20.0),
+                           lead_s=6.0, rtk=RtkParams(time_to_float_s=0.5, time_to_fix_s=1.0))
+    assert rec.completed and rec.summary.recording.error is None
+    return out / "late"
+
+
+def _daq_prompt_delivery_ns(ds: Session) -> float:
+    """The DAQ's prompt delivery latency the causality bound falls short by, against the simulator's truth: the
+    true time of each block's last sample (the ``sim`` event's sample clock) to its host arrival (the simulated
+    host clock is true UTC), taken as :func:`causality_bound_ns` takes it (a known 50 ms shift off the result)."""
+    dev = ds.daq_devices()[0]
+    sim = [e for _t, e in ds.events if e.source == "sim" and "sample0_gps_ns" in e.details]
+    assert len(sim) == 1 and ds.leap_seconds is not None
+    g0 = gps_ns_to_unix_ns(int(sim[0].details["sample0_gps_ns"]), ds.leap_seconds)
+    _first, last, host = ds.daq_blocks(dev)
+    true_last = (g0 + last.astype(np.float64) * (1e9 / float(sim[0].details["true_rate_hz"]))).astype(np.int64)
+    shifted = causality_bound_ns(true_last + 50 * MS, host)
+    assert shifted is not None
+    return 50 * MS - shifted
+
+
+def test_a_constant_host_map_offset_is_not_rated_good(late_receiver: Path) -> None:
+    """Old code: host map figure 0.2–0.8 ms, CAN figure the same, both good, while every CAN frame is 2 ms early
+    (measured with a 2 ms offset). Now the DAQ's causality shows the offset: the CAN figure is degraded and within
+    the stated tolerance of the true error, offline and in the recorder's own verdicts alike."""
+    ds = load_session(late_receiver)
+    true_err = _true_error_ns(ds, _device_stamps(late_receiver))
+    true_ms = float(true_err.max()) / MS
+    assert true_ms == pytest.approx(LATE_NS / MS, abs=0.5)  # the offset, plus the governed recording's own
+    b, why = daq_causality_ns(ds, ds.daq_devices()[0])
+    assert b is not None, why
+    delivery_ms = _daq_prompt_delivery_ns(ds) / MS
+    v = session_verdicts(ds)
+    can = judged(v["can:vsc"], "timing_error_ms")
+    host = figure(v["gnss:rover_a"], "host_map_error_ms")
+    live = _live_verdicts(ds)
+    live_can, live_verdict = _live_figure(live, "can:vsc", "timing_error_ms")
+    live_host, _ = _live_figure(live, "gnss:rover_a", "host_map_error_ms")
+    print(f"{LATE_NS / MS:g} ms late receiver: causality {b / MS:.3f} ms (DAQ prompt delivery {delivery_ms:.3f} ms), "
+          f"host map figure {host:.3f} ms (live {live_host:.3f}), CAN figure {can.value:.3f} ms (live {live_can:.3f}), "
+          f"true max {true_ms:.3f} ms")
+    # a lower bound of the error, short of it by the DAQ's prompt delivery (and the host map's own scatter)
+    assert true_ms - delivery_ms - 0.15 <= b / MS <= true_ms
+    for fig, verdict in ((can.value, can.verdict.value), (live_can, live_verdict)):
+        assert true_ms - delivery_ms - 0.15 <= fig <= true_ms + ABOVE_TOL_MS
+        assert verdict == Verdict.DEGRADED.value
+    assert host >= b / MS + FLOOR_ALLOWANCE_MS and live_host >= b / MS - 0.5
+
+
+def test_a_governed_recording_shows_no_causality_violation(governed: Path) -> None:
+    """The governed clock keeps the receivers on time: the DAQ's causality shows at most what the allowance already
+    covers (the governed host map's own 0.1 ms, measured against the truth), and the recorder's verdicts stay good."""
+    ds = load_session(governed)
+    b, why = daq_causality_ns(ds, ds.daq_devices()[0])
+    assert b is not None and b < FLOOR_ALLOWANCE_MS * MS, why
+    live = _live_verdicts(ds)
+    for stream, name in (("can:vsc", "timing_error_ms"), ("gnss:rover_a", "host_map_error_ms")):
+        value, verdict = _live_figure(live, stream, name)
+        assert verdict == Verdict.GOOD.value, (stream, value)
