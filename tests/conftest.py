@@ -52,3 +52,43 @@ def _no_thread_leaks() -> Iterator[None]:
         t.join(timeout=2.0)
     still = [t.name for t in leaked if t.is_alive()]
     assert not still, f"test leaked running threads: {still}"
+
+
+
+def _shares_session_fixtures(folder: Path) -> bool:
+    conftest = folder / "conftest.py"
+    if not conftest.is_file():
+        return False
+    text = conftest.read_text(encoding="utf-8")
+    return 'scope="session"' in text or 'scope="package"' in text
+
+
+def _scope_of(nodeid: str) -> str:
+    """The unit of work of a test under pytest-xdist: its folder under tests/ if that folder's
+    conftest holds session- or package-scoped fixtures (recorded sessions: recorded once, on one
+    worker, as in a serial run), otherwise its file (module-scoped fixtures stay on one worker)."""
+    path = nodeid.split("::", 1)[0]
+    parts = path.split("/")
+    if len(parts) > 2 and parts[0] == "tests" and _shares_session_fixtures(_TESTS / parts[1]):
+        return f"tests/{parts[1]}"
+    return path
+
+
+_TESTS = Path(__file__).resolve().parent
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | None:
+    """`pytest -n N --dist loadscope` (the README's test command) schedules by `_scope_of`.
+
+    xdist's own `loadgroup` does not work with pytest 9 (its worker writes the group into
+    `item._nodeid`, which pytest 9 no longer reads), so the grouping is done here, on the controller.
+    """
+    if config.getvalue("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class FolderOrFileScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return _scope_of(nodeid)
+
+    return FolderOrFileScheduling(config, log)
