@@ -10,7 +10,8 @@ API (stable; other commands import it)::
 
     from rig.sessiondata import load_inputs, SessionInputs
     inp = load_inputs(path, *, profile=None, imu_calibration=None, use_calibration_file=True,
-                      can=True, optical=True, truth=True, gnss_min_latency_s=None)
+                      can=True, optical=True, truth=True, gnss_min_latency_s=None,
+                      bounded_memory=False, can_roles=None)
 
     inp.gnss                  DualGnss | None (None: see inp.missing["gnss"])
     inp.require_gnss()        DualGnss, or AnalysisError "session … has no receiver for antenna b …"
@@ -69,7 +70,7 @@ import logging
 import math
 import os
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -88,6 +89,7 @@ from vsccore.errors import AnalysisError, ConfigError, RigError, SessionFileErro
 from vsccore.gpstime import GPS_EPOCH_UNIX_NS
 
 if TYPE_CHECKING:
+    from drivers.can.vector_decode import RoleSeries
     from rig.analysis.reference import GnssEpochs
     from sim_devices.vehicle.truth import GroundTruth
 
@@ -829,6 +831,8 @@ def load_inputs(
     truth: bool = True,
     optical_from_daq: bool = False,
     gnss_min_latency_s: float | None = None,
+    bounded_memory: bool = False,
+    can_roles: Collection[str] | None = None,
 ) -> SessionInputs:
     """Read a session into :class:`SessionInputs` (see the module docstring).
 
@@ -837,11 +841,22 @@ def load_inputs(
     recomputes the optical sensors from the DAQ channels (sync-pulse timing when the DAQ has a
     sync channel) instead of the decimated ``/optical/<name>`` topic.
 
+    ``bounded_memory`` (long sessions; ``rig export``'s sideslip struct): the same series with a peak
+    memory that no longer grows with the whole bus's CAN traffic. Only the topics the series asked for
+    need are read into :attr:`SessionInputs.session` (:func:`_bounded_topics`: the decoded GNSS logs, the
+    events, and the optical/DAQ topics and the truth only when ``optical``/``truth``), and each CAN bus is
+    read a batch of blocks at a time (:func:`_streamed_can_roles`), keeping only the frames of the messages
+    its role map decodes: the roles, times and validity equal the default path's. ``inp.session`` then
+    lacks the topics left out (its CAN frames, DAQ blocks, LocationFix, …: reading them there gives nothing).
+    ``can_roles``: only these CAN roles are kept (None: every role of every bus); with ``bounded_memory`` only
+    the messages that carry them are decoded.
+
     Raises:
         SessionFileError: the session cannot be found or read, or its calibration file is unreadable.
         ConfigError: a bad ``imu_calibration`` or calibration file content.
     """
-    session = load_session(path, gnss_min_latency_s=gnss_min_latency_s)
+    session = load_session(path, gnss_min_latency_s=gnss_min_latency_s,
+                           include=_bounded_topics(optical=optical, truth=truth) if bounded_memory else None)
     warnings: list[str] = []  # the loader's own; the dataset's are read live (SessionInputs.warnings)
     missing: dict[str, str] = {}
     streams: dict[str, StreamInfo] = {}
@@ -868,10 +883,16 @@ def load_inputs(
     warnings += w
     if why is not None:
         missing["gnss"] = why
+    streamed: dict[str, _StreamedCan] = {}
+    if bounded_memory:  # each bus read once, before t0 (which, without GNSS, is the first CAN frame's time)
+        for bus in session.can_buses():
+            if can or gnss is None:
+                streamed[bus] = _streamed_can_roles(session, bus, decode=can, first_time=gnss is None,
+                                                    only=can_roles)
     if gnss is not None:
         t0 = int(gnss.time_ns[0])
     else:
-        t0 = _first_time(session)
+        t0 = _first_time(session, streamed, truth_read=truth) if bounded_memory else _first_time(session)
 
     def rel(x: IntArray) -> FloatArray:
         return _rel(x, t0)
@@ -893,7 +914,15 @@ def load_inputs(
             missing["can"] = f"session {session.path} recorded no CAN bus"
         for bus in buses:
             try:
-                roles = session.can_roles(bus)
+                if bounded_memory:
+                    sc = streamed[bus]
+                    if sc.error is not None:
+                        raise sc.error
+                    roles = sc.roles
+                else:
+                    roles = session.can_roles(bus)
+                    if can_roles is not None:
+                        roles = {r: rs for r, rs in roles.items() if r in can_roles}
             except RigError as exc:
                 missing["can"] = f"bus {bus!r}: {exc}"
                 warnings.append(missing["can"])
@@ -910,8 +939,8 @@ def load_inputs(
                 tns = tns[order]
                 signals[role] = Signal(role, rs.unit, f"can:{bus}", tns, rel(tns), vals, ok)
                 streams[f"can.{role}"] = _stream(f"can:{bus}:{role}", signals[role].t_s, ok)
-            ftimes = session.can_frames(bus)
-            if ftimes.time_source == "host_unmapped":
+            time_source = streamed[bus].time_source if bounded_memory else session.can_frames(bus).time_source
+            if time_source == "host_unmapped":
                 warnings.append(f"CAN bus {bus!r}: frame times are host times (no GNSS clock to map them)")
         imu_cfg: ImuCalibrationConfig | None
         if imu_calibration == "in_force":
@@ -965,14 +994,200 @@ def load_inputs(
     )
 
 
-def _first_time(session: Session) -> int:
+_GNSS_LOGS = frozenset(f("r").rsplit("/", 1)[1] for f in (T.gnss_bestpos, T.gnss_bestvel, T.gnss_heading,
+                                                           T.gnss_markpos, T.gnss_marktime, T.gnss_time))
+"""The decoded GNSS logs :class:`rig.dataset.Session` reads for :meth:`~rig.dataset.Session.gnss` and its clocks."""
+
+
+def _bounded_topics(*, optical: bool, truth: bool) -> Callable[[str], bool]:
+    """The topics ``load_inputs(bounded_memory=True)`` reads into its session: every receiver's decoded GNSS logs
+    (the rovers' fixes, the leap seconds and the host clock come from them), the events, and the optical sensors'
+    topics and DAQ blocks (``optical``) and the simulator's truth (``truth``). Left out: the CAN frames (read
+    streamed), the raw bytes, LocationFix, the relay and anything else the series do not use."""
+    opt_prefix = T.optical("s").removesuffix("s")
+    daq_prefix = T.daq_samples("d").split("/d/", 1)[0] + "/"
+
+    def want(topic: str) -> bool:
+        if topic == T.TOPIC_EVENTS:
+            return True
+        if topic.startswith("/gnss/") and topic.count("/") == 3:
+            return topic.rsplit("/", 1)[1] in _GNSS_LOGS
+        if topic.startswith((opt_prefix, daq_prefix)):
+            return optical
+        return truth and topic == T.TOPIC_SIM_TRUTH
+
+    return want
+
+
+@dataclass(slots=True)
+class _StreamedCan:
+    """One CAN bus read by :func:`_streamed_can_roles`."""
+
+    roles: dict[str, RoleSeries]
+    time_source: str
+    """As :attr:`rig.dataset.CanFrames.time_source`."""
+    first_time_ns: int | None
+    """The earliest frame time on the common base (only when asked for; None without frames)."""
+    error: RigError | None = None
+    """Why the roles could not be decoded (no DBC or role map, an unreadable block), as Session.can_roles raises it."""
+
+
+_SLICE = 1 << 20
+"""Frames per slice in :func:`_streamed_can_roles` (its temporaries: a few arrays of this length)."""
+_CAN_BATCH_ROWS = 131_072
+"""Frames per batch read by :func:`_streamed_can_roles` (:func:`rig.export.iter_groups`'s ``chunk_rows``)."""
+
+
+def _slices(n: int) -> list[tuple[int, int]]:
+    """[a, b) slices of ``range(n)``, each of at most :data:`_SLICE` and (but for a lone one) at least 16 items
+    (ClockEstimator.add_many takes fewer than 16 pairs one by one: the same bins, but kept simple)."""
+    starts = list(range(0, n, _SLICE))
+    if len(starts) > 1 and n - starts[-1] < 16:
+        starts.pop()
+    return [(a, starts[i + 1] if i + 1 < len(starts) else n) for i, a in enumerate(starts)]
+
+
+def _concat(parts: list[npt.NDArray[Any]], dtype: type) -> npt.NDArray[Any]:
+    """``np.concatenate(parts)`` emptying ``parts`` as it goes (each part freed once copied)."""
+    out: npt.NDArray[Any] = np.empty(sum(int(p.shape[0]) for p in parts), dtype=dtype)
+    i = 0
+    while parts:
+        p = parts.pop(0)
+        out[i : i + p.shape[0]] = p
+        i += p.shape[0]
+    return out
+
+
+def _streamed_can_roles(session: Session, bus: str, *, decode: bool, first_time: bool,
+                        only: Collection[str] | None = None) -> _StreamedCan:
+    """:meth:`Session.can_roles` of ``bus`` (those named in ``only``, None: all; and the earliest frame time,
+    ``first_time``) with bounded memory.
+
+    The bus's blocks are read a batch at a time (:func:`rig.export.iter_groups`); of each frame only its two
+    clock readings (16 bytes) are kept, and whole only the data frames whose identifier the role map decodes.
+    Then, as :meth:`Session.can_frames` does over every frame: the interface clock is mapped onto the host
+    clock by one lower envelope over all frames (when every frame has an interface time), the host clock onto
+    the common base (:meth:`Session.host_to_utc`); both maps are per-frame functions, so evaluating them on the
+    kept frames only gives those frames the same times. The decoder treats each identifier on its own, in
+    receive order, so decoding only those frames gives the same roles (values, flags, times) as decoding the
+    whole bus.
+    """
+    from drivers.can.checks import CAN_EFF_FLAG, frame_key
+    from drivers.can.roles import RoleMap
+    from drivers.can.vector_decode import FrameBatch, VectorRoleDecoder
+    from rig.export import iter_groups, open_stream
+    from rig.timebase import ClockEstimator
+
+    error: RigError | None = None
+    decoder: VectorRoleDecoder | None = None
+    keys = np.zeros(0, dtype=np.uint32)
+    if decode:
+        try:
+            db = session.dbc()
+            rm = session.rolemap(db, bus)
+            if only is not None:  # the messages of the roles asked for (each message is decoded on its own)
+                specs = tuple(r for r in rm.roles if r.role in only)
+                kept = {r.message for r in specs}
+                rm = RoleMap(specs, tuple(c for c in rm.checks if c.message in kept))
+            decoder = VectorRoleDecoder(db, rm)
+            keys = np.asarray(sorted({frame_key(m.frame_id, m.is_extended_frame)
+                                      for m in (db.get_message_by_name(n) for n in rm.messages)}), dtype=np.uint32)
+        except RigError as exc:
+            error = exc
+    if decoder is None and not first_time:
+        return _StreamedCan({}, "host", None, error)
+    devs: list[IntArray] = []
+    hosts: list[IntArray] = []
+    at: list[IntArray] = []
+    ids: list[npt.NDArray[np.uint32]] = []
+    data: list[npt.NDArray[np.uint8]] = []
+    lens: list[npt.NDArray[np.int16]] = []
+    n = 0
+    width = 8
+    try:
+        for ch in iter_groups(open_stream(session.path), topics=[T.can_frames(bus)], roles=False,
+                              chunk_rows=_CAN_BATCH_ROWS):
+            c = ch.columns
+            devs.append(np.asarray(c["device_ns"], dtype=np.int64))
+            hosts.append(np.asarray(c["host_ns"], dtype=np.int64))
+            width = max(width, int(c["data"].shape[1]))  # the bus's widest payload, as its one block array has
+            if decoder is not None:
+                fid = np.where(c["extended"], c["can_id"] | np.uint32(CAN_EFF_FLAG), c["can_id"]).astype(np.uint32)
+                sel = ~(c["error_frame"] | c["remote_frame"]) & np.isin(fid, keys)
+                at.append(n + np.flatnonzero(sel))
+                ids.append(fid[sel])
+                data.append(np.ascontiguousarray(c["data"][sel]))
+                lens.append(c["len"][sel].astype(np.int16))
+            n += len(ch)
+    except RigError as exc:
+        return _StreamedCan({}, "host", None, exc)
+    dev = _concat(devs, np.int64)
+    host = _concat(hosts, np.int64)
+    rows = _concat(at, np.int64)
+    # The whole-bus arrays (16 bytes a frame) are the most this holds; what follows works on them in slices of
+    # _SLICE frames: the clock maps are per-frame functions, and ClockEstimator.add_many fed the device-time
+    # order slice after slice keeps the same per-bin minima as fed it at once (it carries the open bin over).
+    source = "host"
+    first: int | None = None
+    if n and bool(np.all(dev != T.NO_TIME_NS)):  # as Session.can_frames: interface clock → host, whole session
+        est = ClockEstimator(f"can:{bus}")
+        order = np.argsort(dev, kind="stable")
+        for a, b in _slices(n):
+            o = order[a:b]
+            est.add_many(dev[o], host[o])
+        del order
+        to_host = est.mapping()
+        if first_time:
+            first = min(int(np.min(session.host_to_utc(to_host(dev[a:b]))[0])) for a, b in _slices(n))
+        host_rows = to_host(dev[rows])
+        source = "interface"
+    else:
+        if first_time and n:
+            first = min(int(np.min(session.host_to_utc(host[a:b])[0])) for a, b in _slices(n))
+        host_rows = host[rows]
+    del dev, host
+    t, mapped = session.host_to_utc(host_rows)
+    if not mapped:
+        source = "host_unmapped"
+    roles: dict[str, RoleSeries] = {}
+    if decoder is not None:
+        payload = np.zeros((rows.size, width), dtype=np.uint8)
+        i = 0
+        for d in data:
+            payload[i : i + d.shape[0], : d.shape[1]] = d
+            i += d.shape[0]
+        del data
+        batch = FrameBatch(t, np.concatenate(ids) if ids else np.zeros(0, np.uint32), payload,
+                           np.concatenate(lens) if lens else np.zeros(0, np.int16))
+        roles = dict(decoder.decode(batch).roles)
+    return _StreamedCan(roles, source, first, error)
+
+
+def _first_time(session: Session, streamed: Mapping[str, _StreamedCan] | None = None, truth_read: bool = True) -> int:
+    """The session's first CAN frame, truth or event time (its time base without GNSS). ``streamed``: the buses as
+    :func:`_streamed_can_roles` read them (``bounded_memory``); ``truth_read``: False when the session was read
+    without its truth topic (then the truth's first time is read from the file, streamed)."""
     cands: list[int] = []
     for bus in session.can_buses():
+        if streamed is not None:
+            first = streamed[bus].first_time_ns
+            if first is not None:
+                cands.append(first)
+            continue
         f = session.can_frames(bus)
         if len(f):
             cands.append(int(np.min(f.time_ns)))
     if session.topic_counts.get(T.TOPIC_SIM_TRUTH, 0):
-        cands.append(int(session.truth().time_ns[0]))
+        if truth_read:
+            cands.append(int(session.truth().time_ns[0]))
+        else:
+            from rig.export import iter_groups, open_stream
+
+            times = [int(np.min(c.time_ns)) for c in iter_groups(open_stream(session.path),
+                                                                 topics=[T.TOPIC_SIM_TRUTH]) if len(c)]
+            if not times:
+                raise AnalysisError(f"{session.path}: no {T.TOPIC_SIM_TRUTH} (not a simulated session)")
+            cands.append(min(times))
     if not cands and session.events:
         cands.append(session.events[0][0])
     return min(cands) if cands else 0
