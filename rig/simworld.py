@@ -7,7 +7,9 @@
   port is ``sim://NAME`` (each on its own pseudo-terminals; the rovers' roof antennas at the
   configured lever arms ``[antennas].a`` / ``.b``; MARK1 wired to the sync switch);
 - the simulated VSC ECU (:class:`~sim_devices.vsc_ecu.VscEcu`) on a python-can virtual bus per
-  ``[[can]]`` table with ``interface = "virtual"`` (on the configured channel);
+  ``[[can]]`` table with ``interface = "virtual"`` (on the configured channel); it sends until the
+  world stops, the car standing where the drive ended, as the receivers show it (a real car's bus
+  runs until the recorder stops);
 - the simulated DAQ (:class:`~sim_devices.daq.SimDaqBackend`), made by :meth:`SimWorld.daq_session`
   for the recording session: the optical sensors' outputs (with the *true* zero offset of
   ``simulation.true_optical_zero_deg``), brake-pressure transducers and the sync switch, whose
@@ -75,7 +77,7 @@ from sim_devices.gnss import (
 )
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from sim_devices.vehicle import Drive, GroundTruth, Scenario, VehicleParams, demo_drive, make_scenario, simulate
-from sim_devices.vsc_ecu import EcuOutputs, VscEcu, VscEcuConfig, simulate_ecu
+from sim_devices.vsc_ecu import RUN_ON_STRETCH_S, EcuOutputs, VscEcu, VscEcuConfig, simulate_ecu
 from vsccore.clock import (
     UNBOUNDED_NS,
     Clock,
@@ -298,9 +300,11 @@ class SimWorld:
         self._virtual_can = [c for c in cfg.can if c.interface == "virtual"]
         self._ecu_config = VscEcuConfig(seed=sim.seed, swa_offset_rad=math.radians(sim.true_swa_offset_deg))
         self._host: _DeviceHost | None = _DeviceHost(self) if device_process else None
-        # Computed before the clock starts, so the ECU is on time from its first frame.
+        # Computed before the clock starts, so the ECU is on time from its first frame (and past the
+        # drive's end: the ECU runs on until the world stops).
         self._ecu_outputs: EcuOutputs | None = (
-            simulate_ecu(self.truth, self._ecu_config) if self._virtual_can and not device_process else None
+            simulate_ecu(self.truth, self._ecu_config, t_end_s=float(self.truth.t[-1]) + RUN_ON_STRETCH_S)
+            if self._virtual_can and not device_process else None
         )
         self.clock: ScaledClock | None = None
         self.receivers: dict[str, SimReceiver] = {}
@@ -326,9 +330,8 @@ class SimWorld:
         """Clock time at which the drive has ended (plus time for the last outputs to arrive).
 
         On the governed clock the last GNSS epoch's logs are written and read before the clock passes
-        them, so 0.1 s past its output latency is enough; every stream that outlives the ECU's (which
-        ends with the drive) by this much looks like a CAN stream that ended early. The free-running
-        clock keeps 0.5 s for readers that fall behind."""
+        them, so 0.1 s past its output latency is enough. The free-running clock keeps 0.5 s for
+        readers that fall behind. Every device (the ECU too) goes on until the world stops."""
         tail_s = (0.1 if self.governed else 0.5) + self.sim.gnss.output_latency_s
         return self.timebase.truth_start_ns + round((self.duration_s + tail_s) * NS_PER_S)
 
@@ -530,7 +533,7 @@ class SimWorld:
         # with its true time stamp rather than drop it, unless the host fell seconds behind.
         ecu = VscEcu(self.truth, bus, clock, self.timebase.truth_start_ns, self._ecu_config,
                      outputs=self._ecu_outputs, max_lag_s=max(0.5, 2.0 * self.speed),
-                     reader=can_reader_name(cc.channel), name=f"ecu:{cc.channel}")
+                     reader=can_reader_name(cc.channel), name=f"ecu:{cc.channel}", run_on=True)
         ecu.start()
         self.ecus[cc.channel] = ecu
 
@@ -1042,7 +1045,7 @@ def record_simulated(
         finally:
             # the clock stays governed while the session stops (a reader that closes its end owes
             # nothing): released first, it ran freely at full speed while the readers closed, and the
-            # streams that run on (GNSS) outlasted the ECU's, which ends with the drive, by seconds
+            # session's stop took seconds of simulated time under load
             try:
                 summary = session.stop()
             finally:

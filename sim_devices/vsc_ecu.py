@@ -54,11 +54,12 @@ from drivers.can.dbc import load_dbc
 from drivers.can.vector_encode import MessageEncoder, SignalLayout
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from sim_devices.vehicle.truth import GroundTruth
-from vsccore.clock import UNBOUNDED_NS, Clock, participant
+from vsccore.clock import UNBOUNDED_NS, Clock, Participant, participant
 from vsccore.errors import EncodeError, SimulationError
 
 __all__ = [
     "DEFAULT_CHECKSUMS",
+    "RUN_ON_STRETCH_S",
     "EcuOutputs",
     "EstimatorParams",
     "EstimatorStep",
@@ -81,6 +82,9 @@ G0 = 9.80665
 _DEG = math.pi / 180.0
 _KMH = 1.0 / 3.6
 _BAR = 1e5
+
+RUN_ON_STRETCH_S = 10.0
+"""Seconds past the drive a running-on :class:`VscEcu` has computed ahead (then twice as far each time)."""
 
 
 def vsc_sim_dbc_path() -> Path:
@@ -394,6 +398,8 @@ class EcuOutputs:
     estimator_t: FloatArray
     estimator: Mapping[str, FloatArray]
     """``beta``, ``beta_kinematic``, ``beta_model``, ``tau_s``, ``valid``, ``active`` at ``estimator_t`` (SI)."""
+    t_end_s: float
+    """End of the schedules (s from the truth's start): the truth's end, or later when the car runs on."""
 
 
 def _quantise(x: FloatArray, lsb: float, lo: float, hi: float) -> FloatArray:
@@ -460,11 +466,42 @@ def _wheel_speed_measurement(edges: FloatArray, t_meas: FloatArray, cfg: VscEcuC
     return out
 
 
-def simulate_ecu(truth: GroundTruth, config: VscEcuConfig | None = None, db: Database | None = None) -> EcuOutputs:
+def _inputs_to(truth: GroundTruth, t_end: float) -> tuple[FloatArray, dict[str, FloatArray]]:
+    """Times and the truth's fields the ECU's sensors measure, up to ``t_end``: past the truth's end
+    the car stands where the drive ended, as the simulated receivers show it (their antennas hold the
+    last position and attitude, with no motion): no yaw rate, no acceleration (the lateral
+    accelerometer reads the gravity component of the last roll angle), the steering wheel held."""
+    fields = {"yaw_rate": truth.yaw_rate, "ay_meas": truth.ay_meas, "ax_meas": truth.ax_meas, "ax": truth.ax,
+              "swa": truth.swa}
+    t = truth.t
+    extra = math.ceil((t_end - float(t[-1])) / truth.dt - 1e-9)
+    if extra <= 0:
+        return t, {k: np.asarray(v, dtype=np.float64) for k, v in fields.items()}
+    standing = {"yaw_rate": 0.0, "ay_meas": G0 * math.sin(float(truth.roll[-1])), "ax_meas": 0.0, "ax": 0.0,
+                "swa": float(truth.swa[-1])}
+    t_in = np.concatenate((t, float(t[-1]) + truth.dt * np.arange(1, extra + 1, dtype=np.float64)))
+    return t_in, {k: np.concatenate((np.asarray(v, dtype=np.float64), np.full(extra, standing[k])))
+                  for k, v in fields.items()}
+
+
+def simulate_ecu(
+    truth: GroundTruth,
+    config: VscEcuConfig | None = None,
+    db: Database | None = None,
+    *,
+    t_end_s: float | None = None,
+) -> EcuOutputs:
     """Compute every message's transmit times and signal values (DBC physical units) from ``truth``.
 
+    The schedules run to ``t_end_s`` (default: the truth's end). Past the truth's end the car stands
+    where the drive ended, as the simulated receivers show it (:func:`_inputs_to`; the wheel-speed
+    edge timing reads the last speed until its timeout, then 0). The schedules up to a time do not
+    depend on ``t_end_s`` (nor do the values, save the wheel pressures' noise and the last truth
+    sample's derivatives): a longer run-on appends frames.
+
     Raises:
-        SimulationError: the truth record is too short or not uniformly sampled.
+        SimulationError: the truth record is too short or not uniformly sampled, or ``t_end_s`` is
+            before its end.
     """
     cfg = config or VscEcuConfig()
     db = db or load_dbc(vsc_sim_dbc_path())
@@ -476,6 +513,10 @@ def simulate_ecu(truth: GroundTruth, config: VscEcuConfig | None = None, db: Dat
     if dt <= 0:
         raise SimulationError("simulated VSC ECU: ground-truth time vector is not increasing")
     t_end = float(t[-1])
+    if t_end_s is not None:
+        if not t_end_s >= t_end:
+            raise SimulationError(f"simulated VSC ECU: t_end_s {t_end_s} is before the truth's end {t_end}")
+        t_end = float(t_end_s)
     streams = np.random.SeedSequence(cfg.seed).spawn(16)
     rng = [np.random.default_rng(s) for s in streams]
 
@@ -491,19 +532,21 @@ def simulate_ecu(truth: GroundTruth, config: VscEcuConfig | None = None, db: Dat
     def times(name: str, i: int) -> FloatArray:
         return _schedule(period(name), cfg.phases_s.get(name, 0.0), t_end, cfg.transmit_jitter_s, rng[i])
 
+    t_in, inputs = _inputs_to(truth, t_end)
+
     def sample(x: FloatArray, at: FloatArray) -> FloatArray:
-        return np.asarray(np.interp(at, t, x), dtype=np.float64)
+        return np.asarray(np.interp(at, t_in, x), dtype=np.float64)
 
     series: dict[str, MessageSeries] = {}
 
     # sensor cluster
     m_sc = msg("ESC_SensorCluster")
     t_sc = times("ESC_SensorCluster", 0)
-    yaw_acc = np.gradient(truth.yaw_rate, t)
+    yaw_acc = np.gradient(inputs["yaw_rate"], t_in)
     channels = {
-        "ESC_YawRate": (truth.yaw_rate, cfg.yaw_rate, 1.0 / _DEG, 3),
-        "ESC_LatAccel": (truth.ay_meas + yaw_acc * cfg.cluster_x_m, cfg.lat_accel, 1.0 / G0, 4),
-        "ESC_LongAccel": (truth.ax_meas, cfg.long_accel, 1.0, 5),
+        "ESC_YawRate": (inputs["yaw_rate"], cfg.yaw_rate, 1.0 / _DEG, 3),
+        "ESC_LatAccel": (inputs["ay_meas"] + yaw_acc * cfg.cluster_x_m, cfg.lat_accel, 1.0 / G0, 4),
+        "ESC_LongAccel": (inputs["ax_meas"], cfg.long_accel, 1.0, 5),
     }
     warm = t_sc >= cfg.sensor_warmup_s
     sc: dict[str, FloatArray] = {}
@@ -519,9 +562,9 @@ def simulate_ecu(truth: GroundTruth, config: VscEcuConfig | None = None, db: Dat
     # steering-angle sensor: clockwise positive on the wire
     m_sas = msg("SAS_Steering")
     t_sas = times("SAS_Steering", 1)
-    swa_rate = np.gradient(truth.swa, t)
+    swa_rate = np.gradient(inputs["swa"], t_in)
     lsb, lo, hi = _signal_limits(m_sas, "SAS_Angle")
-    swa_cw_deg = -(sample(truth.swa, t_sas) + cfg.swa_offset_rad) / _DEG
+    swa_cw_deg = -(sample(inputs["swa"], t_sas) + cfg.swa_offset_rad) / _DEG
     rate_cw_dps = -sample(_lowpass(swa_rate, dt, 10.0), t_sas) / _DEG
     rlsb, rlo, rhi = _signal_limits(m_sas, "SAS_Rate")
     series["SAS_Steering"] = MessageSeries(
@@ -547,6 +590,7 @@ def simulate_ecu(truth: GroundTruth, config: VscEcuConfig | None = None, db: Dat
         angle = np.concatenate(([0.0], np.cumsum(0.5 * (omega[1:] + omega[:-1]) * np.diff(t))))
         angle += rng[6 + w].uniform(0.0, 2.0 * math.pi)  # where the first tooth happens to sit
         pitch_errors = np.clip(rng[10 + w].normal(0.0, cfg.tooth_pitch_error_std, cfg.wheel_teeth), -0.45, 0.45)
+        # (past the drive the wheel stands: no more edges, and the speed falls to 0 at the timeout)
         edges = _wheel_edges(t, angle, cfg.wheel_teeth, pitch_errors, cfg.wheel_timer_hz)
         speeds_mps[w] = _wheel_speed_measurement(edges, t_ws, cfg)
         lsb, lo, hi = _signal_limits(m_ws, f"ESC_WheelSpeed_{wheel}")
@@ -595,7 +639,7 @@ def simulate_ecu(truth: GroundTruth, config: VscEcuConfig | None = None, db: Dat
     j_bp = latest(t_bp)
     ok_bp = j_bp >= 0
     j_bp = np.maximum(j_bp, 0)
-    decel = -sample(truth.ax, t_bp)
+    decel = -sample(inputs["ax"], t_bp)
     p_mc = cfg.brake_gain_bar_per_mps2 * np.maximum(decel - cfg.coast_decel_mps2, 0.0)
     pr = rng[14].normal(0.0, cfg.pressure_noise_bar, (5, t_bp.size))
     bp: dict[str, FloatArray] = {}
@@ -653,7 +697,7 @@ def simulate_ecu(truth: GroundTruth, config: VscEcuConfig | None = None, db: Dat
         dg[name] = _quantise(values[j_dg], lsb, lo, hi)
     series["VSC_Diag"] = MessageSeries("VSC_Diag", t_dg, dg)
 
-    return EcuOutputs(messages=series, estimator_t=t_sc, estimator=est_arrays)
+    return EcuOutputs(messages=series, estimator_t=t_sc, estimator=est_arrays, t_end_s=t_end)
 
 
 def _invalid_step() -> EstimatorStep:
@@ -723,6 +767,14 @@ class _FrameTable:
     t: FloatArray
     frame_id: npt.NDArray[np.int64]
     payload: list[bytes]
+    row: npt.NDArray[np.int64]
+    """Index of each frame among its message's frames."""
+
+    def after(self, sent: Mapping[int, int]) -> _FrameTable:
+        """The frames past the first ``sent[frame_id]`` of each message (in transmit order)."""
+        keep = self.row >= np.asarray([sent.get(f, 0) for f in self.frame_id.tolist()], dtype=np.int64)
+        idx = np.flatnonzero(keep)
+        return _FrameTable(self.t[idx], self.frame_id[idx], [self.payload[k] for k in idx.tolist()], self.row[idx])
 
 
 def _frame_table(out: EcuOutputs, cfg: VscEcuConfig, db: Database) -> _FrameTable:
@@ -747,11 +799,12 @@ def _frame_table(out: EcuOutputs, cfg: VscEcuConfig, db: Database) -> _FrameTabl
         width = data.shape[1]
         payload.extend(blob[k : k + width] for k in range(0, n * width, width))
     if not ts:
-        return _FrameTable(np.zeros(0), np.zeros(0, dtype=np.int64), [])
+        return _FrameTable(np.zeros(0), np.zeros(0, dtype=np.int64), [], np.zeros(0, dtype=np.int64))
     t = np.concatenate(ts)
     fid = np.concatenate(ids)
-    order = np.lexsort((np.concatenate(rows), np.concatenate(ranks), fid, t))
-    return _FrameTable(t[order], fid[order], [payload[k] for k in order.tolist()])
+    row = np.concatenate(rows)
+    order = np.lexsort((row, np.concatenate(ranks), fid, t))
+    return _FrameTable(t[order], fid[order], [payload[k] for k in order.tolist()], row[order])
 
 
 def frames(
@@ -821,6 +874,12 @@ class VscEcu:
     ``max_lag_s`` late when their turn comes are skipped, as a real ECU that was already running
     would not have them queued. The bus is not closed here: it belongs to the caller.
 
+    With ``run_on`` the ECU does not stop with the drive: it sends on until :meth:`stop`, the car
+    standing where the drive ended (:func:`simulate_ecu` past the truth's end), as a real car's bus
+    runs until the recorder stops and as the other simulated devices go on. ``outputs`` computed
+    to a later ``t_end_s`` are sent first; then each further stretch is computed when the last one
+    has been sent (:data:`RUN_ON_STRETCH_S` past the drive, then twice as far each time).
+
     On a governed clock (:class:`~vsccore.clock.ClockGovernor`) the ECU is a participant called
     ``name``: simulated time waits for it, and, when ``reader`` names the participant that reads the
     bus (publishing the stamp of each frame it takes), for that reader too: the ECU announces each
@@ -828,8 +887,9 @@ class VscEcu:
     the governor's budget old, so a starved reader holds the clock instead of receiving its frames
     late (and the clock runs on the moment it has taken them).
 
-    The constructor computes the whole drive (:func:`simulate_ecu`), which takes a while for long
-    drives; pass ``outputs`` computed beforehand (with the same ``config``) when ``t0_ns`` is close.
+    The constructor computes the whole drive (:func:`simulate_ecu`; with ``run_on``, to
+    :data:`RUN_ON_STRETCH_S` past its end), which takes a while for long drives; pass ``outputs``
+    computed beforehand (with the same ``config``) when ``t0_ns`` is close.
     """
 
     def __init__(
@@ -845,13 +905,17 @@ class VscEcu:
         outputs: EcuOutputs | None = None,
         reader: str | None = None,
         name: str = "ecu",
+        run_on: bool = False,
     ) -> None:
         self.config = config or VscEcuConfig()
         self._reader = reader
         self._name = name
+        self._run_on = run_on
         self._db = db or load_dbc(vsc_sim_dbc_path())
         self.truth = truth
-        self.outputs = outputs if outputs is not None else simulate_ecu(truth, self.config, self._db)
+        t_end_s = float(truth.t[-1]) + RUN_ON_STRETCH_S if run_on and len(truth) else None
+        self.outputs = (outputs if outputs is not None
+                        else simulate_ecu(truth, self.config, self._db, t_end_s=t_end_s))
         self._table = _frame_table(self.outputs, self.config, self._db)
         self._bus = bus
         self._clock = clock
@@ -860,7 +924,7 @@ class VscEcu:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.finished = threading.Event()
-        """Set when the drive has been sent to its end, stopped, or failed."""
+        """Set when the drive has been sent to its end (never, when running on), stopped, or failed."""
         self.frames_sent = 0
         self.frames_skipped = 0
         self.failure: BaseException | None = None
@@ -897,34 +961,56 @@ class VscEcu:
             self.finished.set()
 
     def run(self) -> None:
-        """Send every frame at its time until the drive ends or :meth:`stop` is called (blocking).
+        """Send every frame at its time until the drive ends (with ``run_on``: on, in the car's last
+        state) or :meth:`stop` is called (blocking).
 
         Raises:
             can.CanError: the bus refused a frame.
         """
         table = self._table
         clock = self._clock
+        first = self._t0_ns + round(float(table.t[0]) * 1e9) if table.t.size else UNBOUNDED_NS
+        with participant(clock, self._name, progress_ns=first) as me:
+            if self._reader is not None:
+                me.feeds(self._reader)
+            while self._send_all(table, me) and self._run_on:
+                # (while this stretch is computed, the governed clock stands at the last frame sent)
+                table = self._next_stretch()
+        self.finished.set()
+
+    def _send_all(self, table: _FrameTable, me: Participant) -> bool:
+        """Send ``table``'s frames at their times; False if stopped first."""
+        clock = self._clock
         send = self._bus.send
         max_lag = self._max_lag_ns
         due = (self._t0_ns + np.round(table.t * 1e9).astype(np.int64)).tolist()
-        with participant(clock, self._name, progress_ns=due[0] if due else UNBOUNDED_NS) as me:
-            if self._reader is not None:
-                me.feeds(self._reader)
-            # simulated time stands still at the next frame's time until it is sent (not the budget past
-            # it): otherwise every late wake-up puts the frame's receive time the budget late
-            hold = me.budget_ns
-            for due_ns, frame_id, data in zip(due, table.frame_id.tolist(), table.payload, strict=True):
-                me.at(due_ns - hold)
-                if not clock.sleep_until_ns(due_ns, self._stop):
-                    return
-                if clock.now_ns() - due_ns > max_lag:
-                    self.frames_skipped += 1
-                    continue
-                me.sent(due_ns)  # before the frame can reach the reader: from now on it owes it
-                send(_SentFrame(timestamp=due_ns / 1e9, arbitration_id=frame_id, is_extended_id=False, data=data,
-                                dlc=len(data)))
-                self.frames_sent += 1
-        self.finished.set()
+        # simulated time stands still at the next frame's time until it is sent (not the budget past
+        # it): otherwise every late wake-up puts the frame's receive time the budget late
+        hold = me.budget_ns
+        for due_ns, frame_id, data in zip(due, table.frame_id.tolist(), table.payload, strict=True):
+            me.at(due_ns - hold)
+            if not clock.sleep_until_ns(due_ns, self._stop):
+                return False
+            if clock.now_ns() - due_ns > max_lag:
+                self.frames_skipped += 1
+                continue
+            me.sent(due_ns)  # before the frame can reach the reader: from now on it owes it
+            send(_SentFrame(timestamp=due_ns / 1e9, arbitration_id=frame_id, is_extended_id=False, data=data,
+                            dlc=len(data)))
+            self.frames_sent += 1
+        return not self._stop.is_set()
+
+    def _next_stretch(self) -> _FrameTable:
+        """The frames after those of :attr:`outputs`, the car running on: the outputs recomputed to
+        twice as far past the drive (at least :data:`RUN_ON_STRETCH_S` further), less the frames of
+        each message already in the previous outputs (rolling counters go on where they were)."""
+        prev = self.outputs
+        truth_end = float(self.truth.t[-1])
+        t_end_s = prev.t_end_s + max(RUN_ON_STRETCH_S, prev.t_end_s - truth_end)
+        sent = {int(self._db.get_message_by_name(name).frame_id): int(series.t.size)
+                for name, series in prev.messages.items()}
+        self.outputs = simulate_ecu(self.truth, self.config, self._db, t_end_s=t_end_s)
+        return _frame_table(self.outputs, self.config, self._db).after(sent)
 
 
 class SimulatedVscBus:
