@@ -33,15 +33,18 @@ jitter; such a frame is sent right after its predecessor (never before it) and c
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import gc
 import logging
 import math
 import os
 import re
 import select
+import sys
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -738,25 +741,39 @@ class Replayer:
     belongs to the caller; frames it receives meanwhile (a bench ECU's own traffic) are read and
     dropped while there is time to spare, so its receive queue does not grow.
 
-    Precision. A sleep of the operating system ends 50-100 µs after its deadline at best (timer slack,
-    wake-up) and later on a busy host, so the wait for each due time is in two steps: the clock's sleep
-    until ``spin_s`` before it, then a short spin on the clock that releases the interpreter lock between
-    checks (:func:`_let_threads_run`), so that other threads of the process are not held up by it. The spin is bounded:
-    when two readings of the clock are equal (a paused governed clock, a clock too coarse to spin on, a
-    test's) the clock's own sleep finishes the wait.
-    ``spin_s=0`` waits with the clock's sleep alone. Frames sharing a due time go out back to back after
-    one wait. The python-can messages are built ahead (``build_ahead`` at a time, while there is time to
-    spare), so nothing is encoded at a due time. The cyclic garbage collector is held off during the
-    send loop (``hold_gc``) and run for the youngest generation only while there is time to spare; it is
-    re-enabled at the end. None of this can stop another process or the hypervisor from taking the CPU
-    at a due time: :class:`ReplayStats` reports the lateness that remains.
+    Precision. A sleep of the operating system ends some tens of µs after its deadline (the kernel's timer
+    slack, 50 µs by default, is set to :attr:`TIMER_SLACK_NS` for the player thread during :meth:`run`) and
+    later on a busy host, so the wait for each due time is in two steps: the clock's sleep until ``spin_s``
+    before it, then a short spin on the clock that releases the interpreter lock between checks
+    (:func:`_let_threads_run`), so that other threads of the process are not held up by it. The spin is
+    bounded: when two readings of the clock are equal (a paused governed clock, a clock too coarse to spin on,
+    a test's) the clock's own sleep finishes the wait. ``spin_s=0`` waits with the clock's sleep alone. The
+    spin is short (0.3 ms) because it costs CPU time, and the fair scheduler lets a thread that used more of
+    it wait longer when it wakes: a recorded bus's frames are about 2.4 ms apart (median), so a 1.5 ms spin
+    kept the player on a CPU 60 % of the time, and on a loaded 2-core host about three times as many frames
+    went out over 1 ms late as with 0.3 ms (``benchmarks/bench_replay.py``). For the same reason the player
+    thread asks the kernel for a short time slice, ``slice_s`` (Linux >= 6.12, no privilege needed; None
+    leaves the scheduler's default): a thread with a shorter slice gets an earlier deadline and takes the
+    CPU from a busy process sooner when it wakes (about half the frames over 1 ms under load).
+
+    Frames sharing a due time go out back to back after one wait. The python-can messages are built ahead
+    (``build_ahead`` at a time, while there is time to spare), so nothing is encoded at a due time. The
+    cyclic garbage collector is held off during the send loop (``hold_gc``) and run for the youngest
+    generation only while there is time to spare; it is re-enabled at the end. None of this can stop
+    another process or the hypervisor from taking the CPU at a due time: :class:`ReplayStats` reports the
+    lateness that remains.
     """
 
     DRAIN_SLACK_NS = 2_000_000
     """Work between frames (draining the receive queue, building messages, a young-generation GC)
     happens only when the next frame is at least this far beyond the start of its spin."""
-    SPIN_S = 0.0015
+    SPIN_S = 0.0003
     """Default final approach to each due time (see the class docstring)."""
+    SLICE_S = 0.0001
+    """Default time slice the player thread asks the scheduler for (see the class docstring)."""
+    TIMER_SLACK_NS = 1_000
+    """The player thread's timer slack during :meth:`run` (Linux; the default is 50 µs, by which the kernel may
+    defer a sleep's wake-up to batch timers)."""
 
     def __init__(
         self,
@@ -772,6 +789,7 @@ class Replayer:
         spin_s: float = SPIN_S,
         build_ahead: int = 64,
         hold_gc: bool = True,
+        slice_s: float | None = SLICE_S,
     ) -> None:
         if not speed > 0 or not math.isfinite(speed):
             raise ConfigError(f"replay: --speed must be a finite number > 0, got {speed}")
@@ -794,6 +812,9 @@ class Replayer:
         self.spin_ns = int(spin_s * NS)
         self.build_ahead = int(build_ahead)
         self.hold_gc = hold_gc
+        if slice_s is not None and not 0 < slice_s <= 0.1:
+            raise ConfigError(f"replay: slice_s must be in (0, 0.1] s, got {slice_s}")
+        self.slice_ns = None if slice_s is None else int(slice_s * NS)
         self._offsets = np.round(plan.t_ns / self.speed).astype(np.int64)
         self._pass_ns = round(plan.pass_length_ns() / self.speed)
         # end (exclusive) of the run of rows sharing each row's due time
@@ -815,7 +836,8 @@ class Replayer:
         if self.hold_gc:
             gc.disable()
         try:
-            return self._run()
+            with _timer_slack(self.TIMER_SLACK_NS), _fair_slice(self.slice_ns):
+                return self._run()
         finally:
             if gc_was_enabled:
                 gc.enable()
@@ -920,6 +942,81 @@ def _let_threads_run() -> None:
         time.sleep(0)
     else:
         select.select((), (), (), 0)
+
+
+_PR_SET_TIMERSLACK = 29
+_PR_GET_TIMERSLACK = 30
+
+
+@contextlib.contextmanager
+def _timer_slack(ns: int) -> Iterator[None]:
+    """The calling thread's timer slack set to ``ns`` for the block, then restored (Linux ``prctl``; no privilege
+    needed). Elsewhere, or when the call fails, nothing changes."""
+    if sys.platform != "linux":
+        yield
+        return
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        yield
+        return
+    zero = ctypes.c_ulong(0)
+    old = prctl(_PR_GET_TIMERSLACK, zero, zero, zero, zero)
+    if old <= 0 or prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(ns), zero, zero, zero) != 0:
+        yield
+        return
+    try:
+        yield
+    finally:
+        prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(old), zero, zero, zero)
+
+
+class _SchedAttr(ctypes.Structure):
+    """Linux ``struct sched_attr`` (``SCHED_ATTR_SIZE_VER1``)."""
+
+    _fields_ = [("size", ctypes.c_uint32), ("sched_policy", ctypes.c_uint32), ("sched_flags", ctypes.c_uint64),
+                ("sched_nice", ctypes.c_int32), ("sched_priority", ctypes.c_uint32),
+                ("sched_runtime", ctypes.c_uint64), ("sched_deadline", ctypes.c_uint64),
+                ("sched_period", ctypes.c_uint64), ("sched_util_min", ctypes.c_uint32),
+                ("sched_util_max", ctypes.c_uint32)]
+
+
+_SCHED_OTHER = 0
+_SYS_SCHED_ATTR = {"x86_64": (314, 315), "aarch64": (274, 275), "arm64": (274, 275), "riscv64": (274, 275)}
+"""``(sched_setattr, sched_getattr)`` system call numbers per machine."""
+
+
+@contextlib.contextmanager
+def _fair_slice(ns: int | None) -> Iterator[None]:
+    """The calling thread's requested time slice set to ``ns`` for the block, then restored (Linux >= 6.12,
+    ``sched_attr.sched_runtime`` of a ``SCHED_OTHER`` thread; no privilege needed). The fair scheduler (EEVDF)
+    gives a thread with a shorter slice an earlier deadline, so on waking it takes the CPU from a busy process
+    sooner. Older kernels, other policies and other systems: nothing changes."""
+    calls = _SYS_SCHED_ATTR.get(os.uname().machine) if ns is not None and sys.platform == "linux" else None
+    if ns is None or calls is None:
+        yield
+        return
+    try:
+        syscall = ctypes.CDLL(None, use_errno=True).syscall
+    except (OSError, AttributeError):
+        yield
+        return
+    set_nr, get_nr = calls
+    attr = _SchedAttr()
+    size = ctypes.sizeof(attr)
+    if syscall(get_nr, 0, ctypes.byref(attr), size, 0) != 0 or attr.sched_policy != _SCHED_OTHER:
+        yield
+        return
+    old = int(attr.sched_runtime)
+    attr.size, attr.sched_runtime = size, ns
+    if syscall(set_nr, 0, ctypes.byref(attr), 0) != 0:
+        yield
+        return
+    try:
+        yield
+    finally:
+        attr.sched_runtime = old
+        syscall(set_nr, 0, ctypes.byref(attr), 0)
 
 
 _GC_YOUNG = 700

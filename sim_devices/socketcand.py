@@ -16,9 +16,22 @@ raw-mode client uses; see socketcand's ``doc/protocol.md``)::
 
 Each client gets its own bus instance from ``open_channel`` (as socketcand opens one raw socket
 per client), so on a virtual bus every client sees the ECU's frames and each other's, and the
-ECU sees the clients'. Garbage between commands is skipped; malformed ``send`` commands are
-logged and ignored, as socketcand does. ``stop()`` closes every socket and bus and joins every
-thread.
+ECU sees the clients'.
+
+A frame a client sends carries its arrival time as ``msg.timestamp``: on Linux the kernel's receive
+stamp of the TCP segment that completed its ``< send >`` (``SO_TIMESTAMPNS``), elsewhere the time the
+command thread read it. A virtual bus of :func:`virtual_channel_opener` keeps that stamp
+(``preserve_timestamps``), so the other clients see the frame at the time it reached the server, as
+socketcand's bus stamps a frame when the daemon writes it, and not later by however long this
+process's command thread waited for the CPU and the interpreter lock (the other threads of the
+process, e.g. a recorder reading from it, hold it; measured with a replay at 1x under load, see
+``benchmarks/bench_replay.py``: a median spacing error of 33-93 µs with the thread's stamps against
+7-25 µs with the arrival stamps, and more frames over 1 ms). When several commands arrive
+before the thread reads them, they share the latest segment's stamp, which is still no later than
+the read. A bus that stamps frames itself (SocketCAN) ignores the stamp.
+
+Garbage between commands is skipped; malformed ``send`` commands are logged and ignored, as
+socketcand does. ``stop()`` closes every socket and bus and joins every thread.
 """
 
 from __future__ import annotations
@@ -26,9 +39,12 @@ from __future__ import annotations
 import contextlib
 import enum
 import logging
+import platform
 import re
 import select
 import socket
+import struct
+import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -44,6 +60,14 @@ log = logging.getLogger(__name__)
 
 _MAX_COMMAND = 256
 """Longest command accepted (an FD ``send`` is < 220 characters); longer junk is dropped."""
+
+_SO_TIMESTAMPNS = 35
+"""Linux ``SO_TIMESTAMPNS`` (``SCM_TIMESTAMPNS``) with a 64-bit ``struct timespec``; Python's socket module
+does not name it."""
+_STAMPED = sys.platform == "linux" and platform.machine() in ("x86_64", "aarch64", "arm64", "riscv64")
+"""Whether the kernel's receive stamps are asked for (architectures where the value above is this option)."""
+_TIMESPEC = struct.Struct("qq")
+_ANCILLARY = socket.CMSG_SPACE(_TIMESPEC.size) if _STAMPED else 0
 
 _SEND = re.compile(r"^< send ([0-9A-Fa-f]{1,8}) ([0-9A-Fa-f]{1,2})((?: [0-9A-Fa-f]{1,2})*) >$")
 
@@ -90,13 +114,17 @@ def virtual_channel_opener(
 
     ``channels`` maps socketcand bus names (what clients ``open``) to virtual channel names;
     without it every name is served as the virtual channel of the same name.
+
+    ``bus_options`` go to ``can.Bus``; ``preserve_timestamps`` defaults to True, so a frame a client sends
+    keeps its arrival stamp (module docstring).
     """
+    options = {"preserve_timestamps": True, **bus_options}
 
     def open_channel(name: str) -> can.BusABC:
         if channels is not None and name not in channels:
             raise DeviceError(f"socketcand: no bus named {name!r} (serving {', '.join(sorted(channels))})")
         target = channels[name] if channels is not None else name
-        return can.Bus(interface="virtual", channel=target, **bus_options)
+        return can.Bus(interface="virtual", channel=target, **options)
 
     return open_channel
 
@@ -129,6 +157,13 @@ class _Client:
         self._rx_thread: threading.Thread | None = None
         self.frames_out = 0
         self.frames_in = 0
+        self.stamped = False  # the kernel stamps what the client sends (module docstring)
+        if _STAMPED:
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+                self.stamped = True
+            except OSError as exc:
+                log.info("socketcand: client %s: no kernel receive stamps (%s); stamping on read", self.peer, exc)
 
     def start(self) -> None:
         self._send("< hi >")
@@ -176,7 +211,7 @@ class _Client:
                 if not readable:
                     continue
                 try:
-                    chunk = self.sock.recv(4096)
+                    chunk, arrived_s = self._read()
                 except OSError:
                     break
                 if not chunk:
@@ -184,7 +219,7 @@ class _Client:
                     break
                 self._buffer += chunk.decode("ascii", errors="replace")
                 for command in self._commands():
-                    self._handle(command)
+                    self._handle(command, arrived_s)
                     if self.closed.is_set():
                         break
         finally:
@@ -197,6 +232,17 @@ class _Client:
             bus, self.bus = self.bus, None
             if bus is not None:
                 bus.shutdown()
+
+    def _read(self) -> tuple[bytes, float]:
+        """The next bytes from the client and their arrival time (s, Unix epoch; see the module docstring)."""
+        if self.stamped:
+            data, ancillary, _flags, _addr = self.sock.recvmsg(4096, _ANCILLARY)
+            for level, kind, payload in ancillary:
+                if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(payload) >= _TIMESPEC.size:
+                    secs, nsecs = _TIMESPEC.unpack_from(payload)
+                    return data, secs + nsecs * 1e-9
+            return data, time.time()
+        return self.sock.recv(4096), time.time()
 
     def _commands(self) -> list[str]:
         out: list[str] = []
@@ -218,7 +264,7 @@ class _Client:
         self._buffer = buf
         return out
 
-    def _handle(self, command: str) -> None:
+    def _handle(self, command: str, arrived_s: float) -> None:
         if command == "< echo >":
             self._send("< echo >")
             return
@@ -245,6 +291,7 @@ class _Client:
             if msg is None:
                 log.warning("socketcand: client %s: malformed send command %r ignored", self.peer, command)
                 return
+            msg.timestamp = arrived_s
             bus = self.bus
             if bus is not None:
                 try:

@@ -2,10 +2,12 @@
 recording by the real recorder and read back with the dataset API.
 
 :class:`ReceivingSide` runs that side in a process of its own, as on a bench where the ECU receives: a
-socketcand server on 127.0.0.1 (its bus stamps each frame when the player's ``< send >`` arrives) and the
-recorder reading from it. The player's process then holds no thread of the receiver, so the interpreter
-lock, the garbage collector and the scheduling of the receiving side do not delay the player's sends, and
-the stamps are taken where a bench interface takes them: on the receiving side.
+socketcand server on 127.0.0.1 (its bus stamps each frame with the kernel's arrival stamp of the player's
+``< send >``, see :mod:`sim_devices.socketcand`) and the recorder reading from it, which records that stamp
+as the frame's device time (``device_ts_ns``; its own receive time is ``host_ts_ns``). The player's process
+then holds no thread of the receiver, so the interpreter lock, the garbage collector and the scheduling of
+the receiving side do not delay the player's sends, and the stamps are taken where a bench interface takes
+them: on the receiving side, when the frame reaches it.
 """
 
 from __future__ import annotations

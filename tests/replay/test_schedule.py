@@ -5,7 +5,10 @@ run on a clock that advances at each reading)."""
 
 from __future__ import annotations
 
+import ctypes
 import gc
+import os
+import sys
 import threading
 from typing import Any
 
@@ -184,7 +187,8 @@ def test_frames_keep_id_length_flags_and_bytes() -> None:
 
 
 @pytest.mark.parametrize(("kw", "match"), [({"speed": 0.0}, "speed"), ({"speed": float("nan")}, "speed"),
-                                           ({"passes": 0}, "passes")])
+                                           ({"passes": 0}, "passes"), ({"slice_s": 0.0}, "slice_s"),
+                                           ({"slice_s": 0.5}, "slice_s")])
 def test_bad_options_are_config_errors(kw: dict[str, Any], match: str) -> None:
     clock = FakeClock()
     bus = RecordingBus(clock)
@@ -288,3 +292,70 @@ def test_the_collector_is_held_off_while_sending_and_restored(enabled_before: bo
     finally:
         (gc.enable if was else gc.disable)()
     assert bus.gc_enabled == [False] * 10
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="the timer slack is a Linux thread attribute (prctl)")
+def test_the_player_thread_sleeps_with_a_fine_timer_slack_and_restores_it() -> None:
+    """While playing, the thread's timer slack is 1 µs (Linux's default 50 µs lets a sleep's wake-up be deferred
+    by that much); afterwards it is what it was."""
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+    zero = ctypes.c_ulong(0)
+
+    def slack() -> int:
+        return int(prctl(30, zero, zero, zero, zero))  # PR_GET_TIMERSLACK
+
+    before = slack()
+    assert before > Replayer.TIMER_SLACK_NS  # the test means something only from a coarser slack
+    seen: list[int] = []
+
+    class SlackBus(RecordingBus):
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            seen.append(slack())
+            super().send(msg, timeout)
+
+    clock = FakeClock()
+    bus = SlackBus(clock)
+    try:
+        Replayer(periodic(5), bus, clock, spin_s=0.0).run()
+    finally:
+        bus.shutdown()
+    assert seen == [Replayer.TIMER_SLACK_NS] * 5
+    assert slack() == before
+
+
+def _slice_ns() -> int | None:
+    """The calling thread's scheduler time slice (``sched_getattr``), None where it cannot be read."""
+    from rig.replay import _SYS_SCHED_ATTR, _SchedAttr
+
+    calls = _SYS_SCHED_ATTR.get(os.uname().machine) if sys.platform == "linux" else None
+    if calls is None:
+        return None
+    attr = _SchedAttr()
+    if ctypes.CDLL(None).syscall(calls[1], 0, ctypes.byref(attr), ctypes.sizeof(attr), 0) != 0:
+        return None
+    return int(attr.sched_runtime)
+
+
+@pytest.mark.skipif(_slice_ns() in (None, 0), reason="no fair-scheduler time slice to read (Linux >= 6.12)")
+def test_the_player_thread_asks_for_a_short_time_slice_and_restores_it() -> None:
+    """While playing, the thread's time slice is ``slice_s`` (so it takes the CPU sooner when it wakes on a busy
+    host); afterwards it is what it was; ``slice_s=None`` leaves it alone."""
+    before = _slice_ns()
+    assert before is not None and before > Replayer.SLICE_S * 1e9
+    seen: list[int | None] = []
+
+    class SliceBus(RecordingBus):
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            seen.append(_slice_ns())
+            super().send(msg, timeout)
+
+    for slice_s, expected in ((Replayer.SLICE_S, round(Replayer.SLICE_S * 1e9)), (0.0005, 500_000), (None, before)):
+        seen.clear()
+        clock = FakeClock()
+        bus = SliceBus(clock)
+        try:
+            Replayer(periodic(3), bus, clock, spin_s=0.0, slice_s=slice_s).run()
+        finally:
+            bus.shutdown()
+        assert seen == [expected] * 3, slice_s
+        assert _slice_ns() == before
