@@ -1058,29 +1058,109 @@ def _concat(parts: list[npt.NDArray[Any]], dtype: type) -> npt.NDArray[Any]:
     return out
 
 
+@dataclass(slots=True)
+class _BusPass:
+    """What one pass over a bus's blocks kept (:func:`_read_bus`)."""
+
+    n: int = 0
+    """Frames on the bus."""
+    all_dev: bool = True
+    """Every frame has an interface time."""
+    monotone: bool = True
+    """The interface times never go back in file order."""
+    clock: Any = None
+    """ClockEstimator fed every frame in file order (None: not asked for, or the times are not all there and
+    in order)."""
+    dev: IntArray | None = None
+    host: IntArray | None = None
+    """Both clock readings of every frame (only when asked for)."""
+    rows_dev: list[IntArray] = field(default_factory=list)
+    rows_host: list[IntArray] = field(default_factory=list)
+    ids: list[npt.NDArray[np.uint32]] = field(default_factory=list)
+    data: list[npt.NDArray[np.uint8]] = field(default_factory=list)
+    lens: list[npt.NDArray[np.int16]] = field(default_factory=list)
+    width: int = 8
+    """The bus's widest payload (its one block array's width)."""
+
+
+def _read_bus(session: Session, bus: str, keys: npt.NDArray[np.uint32] | None, *, keep_clocks: bool) -> _BusPass:
+    """One pass over ``bus``, :data:`_CAN_BATCH_ROWS` frames at a time: the data frames whose identifier is in
+    ``keys`` (None: none) kept whole; every frame's clock readings kept (``keep_clocks``) or else fed to a
+    ClockEstimator as they come while the interface times run forward (fed in device-time order, as
+    :meth:`Session.can_frames` feeds it: add_many carries its open bin from one call to the next)."""
+    from drivers.can.checks import CAN_EFF_FLAG
+    from rig.export import iter_groups, open_stream
+    from rig.timebase import ClockEstimator
+
+    out = _BusPass(clock=None if keep_clocks else ClockEstimator(f"can:{bus}"))
+    devs: list[IntArray] = []
+    hosts: list[IntArray] = []
+    last: int | None = None
+    pend_dev: list[IntArray] = []  # fewer than 16 pairs go to add_many one by one: gathered to 16 first
+    pend_host: list[IntArray] = []
+    for ch in iter_groups(open_stream(session.path), topics=[T.can_frames(bus)], roles=False,
+                          chunk_rows=_CAN_BATCH_ROWS):
+        c = ch.columns
+        dev = np.asarray(c["device_ns"], dtype=np.int64)
+        host = np.asarray(c["host_ns"], dtype=np.int64)
+        out.n += int(dev.shape[0])
+        out.width = max(out.width, int(c["data"].shape[1]))
+        if dev.size and out.all_dev and bool(np.any(dev == T.NO_TIME_NS)):
+            out.all_dev = False
+        if dev.size:
+            if out.monotone and ((last is not None and int(dev[0]) < last) or bool(np.any(dev[1:] < dev[:-1]))):
+                out.monotone = False
+            last = int(dev[-1])
+        if keep_clocks:
+            devs.append(dev)
+            hosts.append(host)
+        elif out.all_dev and out.monotone:
+            pend_dev.append(dev)
+            pend_host.append(host)
+            if sum(d.size for d in pend_dev) >= 16:
+                out.clock.add_many(np.concatenate(pend_dev), np.concatenate(pend_host))
+                pend_dev, pend_host = [], []
+        if keys is not None:
+            fid = np.where(c["extended"], c["can_id"] | np.uint32(CAN_EFF_FLAG), c["can_id"]).astype(np.uint32)
+            sel = ~(c["error_frame"] | c["remote_frame"]) & np.isin(fid, keys)
+            out.rows_dev.append(dev[sel])
+            out.rows_host.append(host[sel])
+            out.ids.append(fid[sel])
+            out.data.append(np.ascontiguousarray(c["data"][sel]))
+            out.lens.append(c["len"][sel].astype(np.int16))
+    if keep_clocks:
+        out.dev = _concat(devs, np.int64)
+        out.host = _concat(hosts, np.int64)
+    elif out.all_dev and out.monotone and pend_dev:
+        out.clock.add_many(np.concatenate(pend_dev), np.concatenate(pend_host))
+    if not (out.all_dev and out.monotone):
+        out.clock = None
+    return out
+
+
 def _streamed_can_roles(session: Session, bus: str, *, decode: bool, first_time: bool,
                         only: Collection[str] | None = None) -> _StreamedCan:
     """:meth:`Session.can_roles` of ``bus`` (those named in ``only``, None: all; and the earliest frame time,
     ``first_time``) with bounded memory.
 
-    The bus's blocks are read a batch at a time (:func:`rig.export.iter_groups`); of each frame only its two
-    clock readings (16 bytes) are kept, and whole only the data frames whose identifier the role map decodes.
-    Then, as :meth:`Session.can_frames` does over every frame: the interface clock is mapped onto the host
-    clock by one lower envelope over all frames (when every frame has an interface time), the host clock onto
-    the common base (:meth:`Session.host_to_utc`); both maps are per-frame functions, so evaluating them on the
-    kept frames only gives those frames the same times. The decoder treats each identifier on its own, in
-    receive order, so decoding only those frames gives the same roles (values, flags, times) as decoding the
-    whole bus.
+    The bus's blocks are read a batch at a time (:func:`_read_bus`); only the data frames whose identifier the
+    role map decodes are kept whole. Then, as :meth:`Session.can_frames` does over every frame: the interface
+    clock is mapped onto the host clock by one lower envelope over all frames (when every frame has an
+    interface time), the host clock onto the common base (:meth:`Session.host_to_utc`); both maps are
+    per-frame functions, so evaluating them on the kept frames only gives those frames the same times. The
+    envelope is fed as the frames come when their interface times run forward (a bus's usual case: nothing of
+    the whole bus is kept); else, and for ``first_time``, every frame's two clock readings (16 bytes) are kept
+    and fed in device-time order. The decoder treats each identifier on its own, in receive order, so decoding
+    only those frames gives the same roles (values, flags, times) as decoding the whole bus.
     """
-    from drivers.can.checks import CAN_EFF_FLAG, frame_key
+    from drivers.can.checks import frame_key
     from drivers.can.roles import RoleMap
     from drivers.can.vector_decode import FrameBatch, VectorRoleDecoder
-    from rig.export import iter_groups, open_stream
     from rig.timebase import ClockEstimator
 
     error: RigError | None = None
     decoder: VectorRoleDecoder | None = None
-    keys = np.zeros(0, dtype=np.uint32)
+    keys: npt.NDArray[np.uint32] | None = None
     if decode:
         try:
             db = session.dbc()
@@ -1096,69 +1176,48 @@ def _streamed_can_roles(session: Session, bus: str, *, decode: bool, first_time:
             error = exc
     if decoder is None and not first_time:
         return _StreamedCan({}, "host", None, error)
-    devs: list[IntArray] = []
-    hosts: list[IntArray] = []
-    at: list[IntArray] = []
-    ids: list[npt.NDArray[np.uint32]] = []
-    data: list[npt.NDArray[np.uint8]] = []
-    lens: list[npt.NDArray[np.int16]] = []
-    n = 0
-    width = 8
     try:
-        for ch in iter_groups(open_stream(session.path), topics=[T.can_frames(bus)], roles=False,
-                              chunk_rows=_CAN_BATCH_ROWS):
-            c = ch.columns
-            devs.append(np.asarray(c["device_ns"], dtype=np.int64))
-            hosts.append(np.asarray(c["host_ns"], dtype=np.int64))
-            width = max(width, int(c["data"].shape[1]))  # the bus's widest payload, as its one block array has
-            if decoder is not None:
-                fid = np.where(c["extended"], c["can_id"] | np.uint32(CAN_EFF_FLAG), c["can_id"]).astype(np.uint32)
-                sel = ~(c["error_frame"] | c["remote_frame"]) & np.isin(fid, keys)
-                at.append(n + np.flatnonzero(sel))
-                ids.append(fid[sel])
-                data.append(np.ascontiguousarray(c["data"][sel]))
-                lens.append(c["len"][sel].astype(np.int16))
-            n += len(ch)
+        bp = _read_bus(session, bus, keys, keep_clocks=first_time)
+        if bp.n and bp.all_dev and bp.clock is None and bp.dev is None:  # interface times out of order
+            again = _read_bus(session, bus, None, keep_clocks=True)
+            bp.dev, bp.host = again.dev, again.host
     except RigError as exc:
         return _StreamedCan({}, "host", None, exc)
-    dev = _concat(devs, np.int64)
-    host = _concat(hosts, np.int64)
-    rows = _concat(at, np.int64)
-    # The whole-bus arrays (16 bytes a frame) are the most this holds; what follows works on them in slices of
-    # _SLICE frames: the clock maps are per-frame functions, and ClockEstimator.add_many fed the device-time
-    # order slice after slice keeps the same per-bin minima as fed it at once (it carries the open bin over).
+    rows_dev = _concat(bp.rows_dev, np.int64)
+    rows_host = _concat(bp.rows_host, np.int64)
     source = "host"
     first: int | None = None
-    if n and bool(np.all(dev != T.NO_TIME_NS)):  # as Session.can_frames: interface clock → host, whole session
-        est = ClockEstimator(f"can:{bus}")
-        order = np.argsort(dev, kind="stable")
-        for a, b in _slices(n):
-            o = order[a:b]
-            est.add_many(dev[o], host[o])
-        del order
+    if bp.n and bp.all_dev:  # as Session.can_frames: interface clock → host over the whole session
+        est = bp.clock
+        if est is None:
+            assert bp.dev is not None and bp.host is not None
+            dev, host = bp.dev, bp.host
+            est = ClockEstimator(f"can:{bus}")
+            order = np.argsort(dev, kind="stable")
+            for a, b in _slices(bp.n):  # the temporaries: a few arrays of _SLICE frames
+                o = order[a:b]
+                est.add_many(dev[o], host[o])
+            del order
         to_host = est.mapping()
-        if first_time:
-            first = min(int(np.min(session.host_to_utc(to_host(dev[a:b]))[0])) for a, b in _slices(n))
-        host_rows = to_host(dev[rows])
+        if first_time and bp.dev is not None:
+            first = min(int(np.min(session.host_to_utc(to_host(bp.dev[a:b]))[0])) for a, b in _slices(bp.n))
+        rows_host = to_host(rows_dev)
         source = "interface"
-    else:
-        if first_time and n:
-            first = min(int(np.min(session.host_to_utc(host[a:b])[0])) for a, b in _slices(n))
-        host_rows = host[rows]
-    del dev, host
-    t, mapped = session.host_to_utc(host_rows)
+    elif first_time and bp.n and bp.host is not None:
+        first = min(int(np.min(session.host_to_utc(bp.host[a:b])[0])) for a, b in _slices(bp.n))
+    bp.dev = bp.host = None
+    t, mapped = session.host_to_utc(rows_host)
     if not mapped:
         source = "host_unmapped"
     roles: dict[str, RoleSeries] = {}
     if decoder is not None:
-        payload = np.zeros((rows.size, width), dtype=np.uint8)
+        payload = np.zeros((t.size, bp.width), dtype=np.uint8)
         i = 0
-        for d in data:
+        while bp.data:
+            d = bp.data.pop(0)
             payload[i : i + d.shape[0], : d.shape[1]] = d
             i += d.shape[0]
-        del data
-        batch = FrameBatch(t, np.concatenate(ids) if ids else np.zeros(0, np.uint32), payload,
-                           np.concatenate(lens) if lens else np.zeros(0, np.int16))
+        batch = FrameBatch(t, _concat(bp.ids, np.uint32), payload, _concat(bp.lens, np.int16))
         roles = dict(decoder.decode(batch).roles)
     return _StreamedCan(roles, source, first, error)
 

@@ -108,15 +108,32 @@ def test_bounded_load_inputs_equals_the_whole_session(drive: Drive, small_batche
     _same_inputs(some, sd.load_inputs(drive.base, optical=False, truth=False, can_roles=roles))
 
 
-def test_streamed_can_equals_session_can_frames(ds: Synth, small_batches: None) -> None:
-    """On a session of several parts with a drifting interface clock: the streamed roles and the first frame
-    time equal Session.can_roles / Session.can_frames."""
+@pytest.mark.parametrize("how", ["fed as read", "in device-time order", "out of order: read again"])
+def test_streamed_can_equals_session_can_frames(ds: Synth, small_batches: None, how: str,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """On a session of several parts with a drifting interface clock: the streamed roles (and the first frame
+    time) equal Session.can_roles / Session.can_frames, whether the interface clock's envelope is fed as the
+    blocks come, from every frame's clock readings in device-time order (``first_time``), or from a second pass
+    when the first found the interface times out of order."""
     full: Session = load_session(ds.base)
     lean = load_session(ds.base, include=sd._bounded_topics(optical=False, truth=False))
-    got = sd._streamed_can_roles(lean, "can0", decode=True, first_time=True)
+    passes: list[bool] = []
+    read_bus = sd._read_bus
+
+    def spy(*a: Any, **k: Any) -> sd._BusPass:
+        bp = read_bus(*a, **k)
+        passes.append(k["keep_clocks"])
+        if how.startswith("out of order") and len(passes) == 1:
+            assert bp.clock is not None  # in order in the file: as if it were not
+            bp.clock, bp.monotone = None, False
+        return bp
+
+    monkeypatch.setattr(sd, "_read_bus", spy)
+    got = sd._streamed_can_roles(lean, "can0", decode=True, first_time=how == "in device-time order")
+    assert passes == {"fed as read": [False], "in device-time order": [True],
+                      "out of order: read again": [False, True]}[how]
     frames = full.can_frames("can0")
     assert got.error is None and got.time_source == frames.time_source == "interface"
-    assert got.first_time_ns == int(np.min(frames.time_ns))
     want = full.can_roles("can0")
     assert list(got.roles) == list(want) and sum(len(s) > 0 for s in want.values()) >= 2
     for role, s in want.items():
@@ -124,8 +141,10 @@ def test_streamed_can_equals_session_can_frames(ds: Synth, small_batches: None) 
         assert np.array_equal(g.timestamps_ns, s.timestamps_ns), role
         assert np.array_equal(g.values, s.values, equal_nan=True), role
         assert np.array_equal(g.flags, s.flags), role
-    # without GNSS to start the time base, t0 is the first CAN frame's time either way
-    assert sd._first_time(lean, {"can0": got}, truth_read=False) == sd._first_time(full)
+    if how == "in device-time order":
+        assert got.first_time_ns == int(np.min(frames.time_ns))
+        # without GNSS to start the time base, t0 is the first CAN frame's time either way
+        assert sd._first_time(lean, {"can0": got}, truth_read=False) == sd._first_time(full)
 
 
 def test_export_sideslip_equals_validate_session(drive: Drive, tmp_path: Path, small_batches: None,
