@@ -20,7 +20,7 @@ if [ "${1:-}" = "--demo" ]; then
   done
   exit $rc
 fi
-.venv/bin/python -m pytest -q "$@"
+.venv/bin/python -m pytest -q -n 4 --dist loadscope "$@"
 rc=$?
 echo "stress_suite: README test command under 6 busy processes: exit $rc, wall $(( $(date +%s) - start )) s"
 exit $rc
