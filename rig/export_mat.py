@@ -40,7 +40,6 @@ v7.3 for long sessions.
 
 from __future__ import annotations
 
-import math
 import os
 import platform
 from collections.abc import Callable, Mapping, Sequence
@@ -357,27 +356,10 @@ def _sideslip_series(inp: Any) -> tuple[Any, npt.NDArray[np.float64], npt.NDArra
     working memory on a one-hour session is 1.5 GB). ``tests/inspect/test_export_mat_memory.py`` holds the two
     equal."""
     from rig.analysis.metrics import error_series
-    from rig.analysis.reference import AntennaGeometry, ImuSpec, ReferenceMethod, reference_sideslip, vehicle_points
-    from rig.validate import _estimate, _imu, roll_model, steering_model, tolerances_from_config
+    from rig.validate import session_estimate, session_reference
 
-    _tol, vcfg = tolerances_from_config(inp.session.config)
-    gnss = inp.require_gnss()
-    imu, _r = _imu(inp)
-    prof = inp.profile
-    ant = prof.antennas
-    geometry = AntennaGeometry(
-        a_xy=ant.a.xy, baseline_length_m=ant.baseline_length_m, baseline_tolerance_m=ant.baseline_tolerance_m,
-        mount_offset_rad=math.radians(prof.calibration.mount_offset_deg), z=ant.a.z_m,
-    )
-    v = prof.vehicle
-    points = vehicle_points(v.cg_to_front_axle_m, v.cg_to_rear_axle_m, v.track_front_m, v.track_rear_m,
-                            {o.name: o.mount.xy for o in prof.optical})
-    ref = reference_sideslip(
-        gnss.to_epochs(), imu, geometry, method=ReferenceMethod.RTS, points=points,
-        imu_spec=ImuSpec(roll_gain_rad_per_mps2=steering_model(prof).roll_gain_rad_per_mps2),
-        min_speed_mps=max(vcfg.min_speed_kmh / 3.6, 0.5), roll_model=roll_model(v),
-    )
-    est, _source = _estimate(inp, ref.t, None)
+    ref, _imu = session_reference(inp)
+    est, _source = session_estimate(inp, ref.t)
     return ref, est, error_series(est, ref.beta)
 
 

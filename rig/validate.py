@@ -361,6 +361,42 @@ def _clean(x: Any) -> Any:
     return x
 
 
+def session_reference(
+    inp: SessionInputs, *, method: ReferenceMethod | str = ReferenceMethod.RTS, gnss_spec: GnssSpec | None = None,
+) -> tuple[ReferenceSideslip, ImuSeries]:
+    """The session's reference sideslip as :func:`validate_session` computes it (the vehicle profile's antenna
+    geometry, mounting offset, vehicle points and roll model; the recorded ``[validation]`` minimum speed), and
+    the IMU series it used. Shared with the MAT export's sideslip struct (``rig.export_mat``).
+
+    Raises:
+        AnalysisError: no dual-antenna GNSS or no CAN yaw rate.
+        ConfigError: an invalid recorded ``[validation]`` table.
+    """
+    prof = inp.profile
+    _tol, vcfg = tolerances_from_config(inp.session.config)
+    gnss = inp.require_gnss()
+    imu, _r = _imu(inp)
+    ant = prof.antennas
+    geometry = AntennaGeometry(
+        a_xy=ant.a.xy, baseline_length_m=ant.baseline_length_m, baseline_tolerance_m=ant.baseline_tolerance_m,
+        mount_offset_rad=math.radians(prof.calibration.mount_offset_deg), z=ant.a.z_m,
+    )
+    v = prof.vehicle
+    points = vehicle_points(v.cg_to_front_axle_m, v.cg_to_rear_axle_m, v.track_front_m, v.track_rear_m,
+                            {o.name: o.mount.xy for o in prof.optical})
+    ref = reference_sideslip(
+        gnss.to_epochs(), imu, geometry, method=method, points=points, gnss_spec=gnss_spec,
+        imu_spec=ImuSpec(roll_gain_rad_per_mps2=steering_model(prof).roll_gain_rad_per_mps2),
+        min_speed_mps=max(vcfg.min_speed_kmh / 3.6, 0.5), roll_model=roll_model(v),
+    )
+    return ref, imu
+
+
+def session_estimate(inp: SessionInputs, t: FloatArray, estimator: str | None = None) -> tuple[FloatArray, str]:
+    """The sideslip estimate on ``t`` (the CAN ``vsc_beta_estimate``, or ``estimator``'s output) and its source."""
+    return _estimate(inp, t, estimator)
+
+
 def validate_session(
     source: Path | str | SessionInputs,
     *,
@@ -397,21 +433,8 @@ def validate_session(
     tol = tolerances if tolerances is not None else tol_cfg
     gnss = inp.require_gnss()
     step("reference sideslip")
-    imu, _r = _imu(inp)
-    ant = prof.antennas
-    geometry = AntennaGeometry(
-        a_xy=ant.a.xy, baseline_length_m=ant.baseline_length_m, baseline_tolerance_m=ant.baseline_tolerance_m,
-        mount_offset_rad=math.radians(prof.calibration.mount_offset_deg), z=ant.a.z_m,
-    )
+    ref, imu = session_reference(inp, method=method, gnss_spec=gnss_spec)
     sm = steering_model(prof)
-    v = prof.vehicle
-    points = vehicle_points(v.cg_to_front_axle_m, v.cg_to_rear_axle_m, v.track_front_m, v.track_rear_m,
-                            {o.name: o.mount.xy for o in prof.optical})
-    ref = reference_sideslip(
-        gnss.to_epochs(), imu, geometry, method=method, points=points, gnss_spec=gnss_spec,
-        imu_spec=ImuSpec(roll_gain_rad_per_mps2=sm.roll_gain_rad_per_mps2),
-        min_speed_mps=max(vcfg.min_speed_kmh / 3.6, 0.5), roll_model=roll_model(v),
-    )
     t = ref.t
     yaw = imu.yaw_rate
     r_t = np.interp(t, imu.t, yaw)
