@@ -9,8 +9,9 @@ Recognised frames (:class:`FrameKind`):
 - NMEA 0183 sentences ``$…*hh`` (XOR checksum; fields decoded by pynmea2),
 - RTCM3 frames ``D3``, 10-bit length, CRC-24Q (decoded by pyrtcm).
 
-The framer is incremental: :meth:`Framer.feed` takes any chunk and returns the frames completed
-so far (a frame split across chunks is reassembled); :meth:`Framer.finish` ends the stream.
+The framer is incremental: :meth:`Framer.feed` takes any chunk and returns the frames it completes,
+as a tuple (a frame split across chunks is reassembled; when none completes, one shared empty tuple:
+the common small read allocates nothing); :meth:`Framer.finish` ends the stream.
 :class:`FrameReader` drives it from any object with ``read(n)``. Sync candidates are found with
 one compiled regular expression (a C-level scan), CRCs run in C (zlib) for NovAtel frames. The
 common case, a standard long-header binary log, is handled inline in the scan loop and decoded by
@@ -40,16 +41,23 @@ an abbreviated log resumes at its last complete line. Between frames the same ho
 the next bytes wait until they could hold a complete frame (10 bytes, or a byte that ends one of
 the few frames shorter than that), and bytes that start no frame wait for a sync byte (at most
 512 of them), so a binary log fed one byte at a time is looked at twice: at its header and at its
-end (neither needs a scan). Frames and counts are the same for any chunking, and a frame is
-returned by the very ``feed`` that completes it; bytes that are still held
-(:attr:`Framer.pending_bytes`) are counted in the stats once a scan has classified them.
+end (neither needs a scan). A look at a frame that waits at the start of the held bytes (its sync
+byte, a text log's header, its ``*`` or CRC digits, an RTCM3 header) asks only that frame's parser,
+which is what a scan would do first; a scan runs once the parser has a verdict, and takes it from
+there, so a text or RTCM3 frame fed one byte at a time is scanned once. Frames and counts are the
+same for any chunking, and a frame is returned by the very ``feed`` that completes it; bytes that
+are still held (:attr:`Framer.pending_bytes`) are counted in the stats once a scan has classified
+them.
 
-A 1-byte feed that changes no verdict appends the byte and makes one length comparison and (when
-a byte could end the wait) one set lookup: about 40 ns measured, on top of about 35 ns for the call
-itself. Appending is needed (any framer must keep the bytes of a frame it has not finished), and
-that per-call floor is why 1 MB fed one byte at a time costs about 3x one 1 MB call on a receiver's
-stream, and more on streams that one call passes over at C speed
-(``benchmarks/bench_framer_chunking.py`` prints both and the floors).
+A 1-byte feed that changes no verdict appends the byte, compares the buffer's length with the end of
+the frame in progress (the rest of a binary log or RTCM3 frame, a text log's CRC digits) or, when a
+byte may end the wait, with the wait's length and makes one set lookup, and returns the shared empty
+tuple. On a receiver's stream what a 1 MB one-byte-at-a-time feed costs beyond that is the floor of
+any feed written in Python: the call itself (a feed that does nothing: 0.6-1.0x one 1 MB call),
+keeping the byte (a feed that only appends it: 1.1-1.7x) and the one call's own work (1x); measured
+with ``benchmarks/bench_framer_chunking.py`` on a shared machine, this framer takes 2.8-3.5x (median
+3.1x). Streams that one call passes over at C speed (long runs that one search or CRC skips) cost
+more in ratio: there the no-op floor alone is 1.5-2.8x.
 """
 
 from __future__ import annotations
@@ -140,6 +148,8 @@ class Frame:
 
 
 _new_frame = fast_constructor(Frame)
+#: What feed() returns when no frame completes: one shared (immutable) empty tuple, no allocation.
+_NO_FRAMES: tuple[Frame, ...] = ()
 _BINARY = FrameKind.NOVATEL_BINARY
 _crc32 = zlib.crc32
 # Generated decoders that turn a verified standard long-header binary frame straight into a Frame.
@@ -304,6 +314,9 @@ class Framer:
         self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
         # The 1-byte chunks that are not of _wake_set (a 1-byte feed's test is one set lookup).
         self._quiet = _QUIET[self._wake_set]
+        # _wake_len when no byte ends the wait (_wake_set None), else 0: below it, feed() keeps the
+        # bytes after one comparison (the rest of a binary log, an RTCM3 frame or a text log's CRC).
+        self._quiet_len = 0
         self._abbrev_resume: tuple[int, int, int] | None = None  # stream offsets (start, next line, end)
         self._base = 0  # stream offset of self._acc[0]
         self._span_end = 0  # stream offset where the current rejected span ends
@@ -329,24 +342,27 @@ class Framer:
         stats.bytes_in = self._base + len(self._acc)  # kept here, not per feed: feed(1 byte) stays cheap
         return stats
 
-    def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
-        """Add bytes; return the frames completed by them (in stream order)."""
+    def feed(self, data: bytes | bytearray | memoryview) -> tuple[Frame, ...]:
+        """Add bytes; return the frames completed by them (in stream order; ``()`` for none)."""
         acc = self._acc
         acc += data
-        if len(acc) < self._wake_len:
+        n = len(acc)
+        if n < self._quiet_len:  # a frame's known rest: no byte can end the wait before its end
+            return _NO_FRAMES
+        if n < self._wake_len:
             # No frame can complete, or be rejected, before the wake condition: keep the bytes only.
             if self._wake_set is None:
-                return []
+                return _NO_FRAMES
             try:
                 if data in self._quiet:  # a serial port's typical read, one byte: a hash lookup
-                    return []
+                    return _NO_FRAMES
             except (TypeError, ValueError):  # a bytearray or writable memoryview: unhashable
                 pass
             if self._wake_search(data) is None:  # a longer chunk (never in the set of 1-byte ones)
-                return []
+                return _NO_FRAMES
         return self._look()
 
-    def _look(self) -> list[Frame]:
+    def _look(self) -> tuple[Frame, ...]:
         """Look at the bytes held now that a fed chunk could change a verdict."""
         acc = self._acc
         n = len(acc)
@@ -357,14 +373,32 @@ class Framer:
             total = 32 + (acc[8] | acc[9] << 8)
             if total <= self.max_frame_len:
                 if n < total:  # wait for the rest (as _parse_binary would say)
-                    self._wake_len = total
+                    self._wake_len = self._quiet_len = total
                     self._wake_set = None
-                    return []
+                    return _NO_FRAMES
                 if n == total and self._decode_logs:
-                    frame = self._whole_binary(acc)
-                    if frame is not None:
-                        self._quiet = _QUIET_AFTER_FRAME
-                        return [frame]
+                    # The buffer is one such log: taken as the scan's inline path takes it, if its CRC is
+                    # good and a generated decoder takes it (else the scan decides, with the same result).
+                    raw = bytes(acc)
+                    if _crc32(raw, 0xFFFFFFFF) == 0xFFFFFFFF:
+                        try:
+                            frame = _FAST_FRAMES_GET(raw[4] | raw[5] << 8, _fast_raw_frame)(raw)
+                        except KeyError:
+                            frame = None
+                        if frame is not None:
+                            base = self._base
+                            if self._span_end > base:  # an accepted frame ends the rejected span
+                                self._span_end = base
+                            stats = self._stats
+                            stats.frames[_BINARY] += 1
+                            stats.bytes_in_frames += n
+                            self._base = base + n
+                            acc.clear()
+                            self._wake_len = _AFTER_FRAME_LEN
+                            self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
+                            self._quiet = _QUIET_AFTER_FRAME
+                            self._quiet_len = 0
+                            return (frame,)
         resume = self._abbrev_resume
         if resume is not None and resume[0] == self._base:
             # An abbreviated log at the start, waiting for its next line: walk the new lines in the
@@ -375,17 +409,41 @@ class Framer:
             if status == _NEED:
                 self._wake_len = end
                 self._settle()
-                return []
+                return _NO_FRAMES
             self._abbrev_resume = resume
-        frames = self._scan(final=False)
+        first = acc[0]
+        if first in _SYNC_BYTES and (first != 0xAA or n < 10):
+            # A frame candidate at the start (where the last scan stopped, or the sync byte that woke
+            # an after-frame wait): its parser is what a scan would call first. While it still needs
+            # bytes, that is all a scan would do; otherwise the scan takes its verdict from here. (A
+            # binary log's header is left to the scan, whose inline path decodes a standard one.)
+            buf = bytes(acc)
+            self._wake_set = None  # as in a scan: a parser that stops at a NEED may set another
+            result = self._parsers[first](buf, 0, n, False)
+            if result[0] == _NEED:
+                self._wake_len = result[1]
+                self._settle()
+                return _NO_FRAMES
+            frames = self._scan(False, (buf, result))
+        elif n == 2 and acc == b"\r\n":  # a text frame's line end (the scan would count it so)
+            self._skip(acc, 0, 2)
+            self._base += 2
+            acc.clear()
+            self._wake_len = _AFTER_FRAME_LEN
+            self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
+            frames = _NO_FRAMES
+        else:
+            frames = self._scan(False)
         self._settle()
         return frames
 
     def _settle(self) -> None:
         """After a look at the bytes: the 1-byte chunks that feed() may keep without the next look."""
-        self._quiet = _QUIET[self._wake_set]
+        wake_set = self._wake_set
+        self._quiet = _QUIET[wake_set]
+        self._quiet_len = self._wake_len if wake_set is None else 0
 
-    def flush(self) -> list[Frame]:
+    def flush(self) -> tuple[Frame, ...]:
         """Complete a pending abbreviated-ASCII log without waiting for the next byte.
 
         An abbreviated log has no end marker; call this after a read timeout. Every other frame
@@ -398,7 +456,7 @@ class Framer:
             self._flush = False
             self._settle()
 
-    def finish(self) -> list[Frame]:
+    def finish(self) -> tuple[Frame, ...]:
         """End of stream: complete what can be completed, count the rest as truncated or garbage."""
         frames = self._scan(final=True)
         self._acc.clear()
@@ -415,10 +473,15 @@ class Framer:
 
     # --- scanning -----------------------------------------------------------------------
 
-    def _scan(self, final: bool) -> list[Frame]:
+    def _scan(self, final: bool, first: tuple[bytes, _Result] | None = None) -> tuple[Frame, ...]:
+        """Frame the held bytes; ``first``: the held bytes (as bytes) and the verdict of the parser of
+        the sync byte at their start, already called (:meth:`_look`)."""
         acc = self._acc
         n = len(acc)
-        buf = bytes(acc)
+        if first is None:
+            buf = bytes(acc)
+        else:
+            buf, result = first
         self._wake_set = None  # a parser that stops at a NEED may set another
         pos = 0
         out: list[Frame] = []
@@ -433,48 +496,53 @@ class Framer:
         line_ends = 0
         span_rel = self._span_end - self._base  # the current rejected span ends at buf[span_rel]
         while pos < n:
-            if buf[pos] in _SYNC_BYTES:  # back-to-back frames: no search needed
-                start = pos
+            if first is not None:  # the verdict at buf[0], given
+                first = None
+                start = 0
+                status, end, payload = result
             else:
-                m = search(buf, pos)
-                if m is None:
-                    if final:
-                        pass
-                    elif buf[pos:].strip(b"\r\n"):
-                        # Until a sync byte arrives, held bytes can complete nothing; count them then.
-                        self._wake_len = _GARBAGE_HOLD
-                        self._wake_set, self._wake_search = _WAKE_SYNC
-                    else:  # only the line end of a text frame
-                        self._wake_len = _AFTER_FRAME_LEN
-                        self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
-                    self._skip(buf, pos, n)
-                    pos = n
-                    break
-                start = m.start()
-                self._skip(buf, pos, start)
-            # Inline path for the common case, a complete long-header binary log with the standard
-            # header length and a good CRC: the same checks and result as _parse_binary, without
-            # its dispatch, result tuple and wrapper calls. Anything else takes the general path.
-            if fast_binary and start + 10 <= n and buf.startswith(_LONG_SYNC_28, start):
-                total = 32 + (buf[start + 8] | buf[start + 9] << 8)
-                end = start + total
-                if end <= n and total <= max_len:
-                    raw = buf[start:end]
-                    if _crc32(raw, 0xFFFFFFFF) == 0xFFFFFFFF:
-                        try:
-                            frame = _FAST_FRAMES_GET(buf[start + 4] | buf[start + 5] << 8, _fast_raw_frame)(raw)
-                        except KeyError:
-                            frame = None
-                        if frame is not None:
-                            if start < span_rel:  # an accepted frame ends the rejected span
-                                self._span_end = self._base + start
-                                span_rel = start
-                            append(frame)
-                            fast_count += 1
-                            fast_bytes += total
-                            pos = end
-                            continue
-            status, end, payload = parsers[buf[start]](buf, start, n, final)
+                if buf[pos] in _SYNC_BYTES:  # back-to-back frames: no search needed
+                    start = pos
+                else:
+                    m = search(buf, pos)
+                    if m is None:
+                        if final:
+                            pass
+                        elif buf[pos:].strip(b"\r\n"):
+                            # Until a sync byte arrives, held bytes can complete nothing; count them then.
+                            self._wake_len = _GARBAGE_HOLD
+                            self._wake_set, self._wake_search = _WAKE_SYNC
+                        else:  # only the line end of a text frame
+                            self._wake_len = _AFTER_FRAME_LEN
+                            self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
+                        self._skip(buf, pos, n)
+                        pos = n
+                        break
+                    start = m.start()
+                    self._skip(buf, pos, start)
+                # Inline path for the common case, a complete long-header binary log with the standard
+                # header length and a good CRC: the same checks and result as _parse_binary, without
+                # its dispatch, result tuple and wrapper calls. Anything else takes the general path.
+                if fast_binary and start + 10 <= n and buf.startswith(_LONG_SYNC_28, start):
+                    total = 32 + (buf[start + 8] | buf[start + 9] << 8)
+                    end = start + total
+                    if end <= n and total <= max_len:
+                        raw = buf[start:end]
+                        if _crc32(raw, 0xFFFFFFFF) == 0xFFFFFFFF:
+                            try:
+                                frame = _FAST_FRAMES_GET(buf[start + 4] | buf[start + 5] << 8, _fast_raw_frame)(raw)
+                            except KeyError:
+                                frame = None
+                            if frame is not None:
+                                if start < span_rel:  # an accepted frame ends the rejected span
+                                    self._span_end = self._base + start
+                                    span_rel = start
+                                append(frame)
+                                fast_count += 1
+                                fast_bytes += total
+                                pos = end
+                                continue
+                status, end, payload = parsers[buf[start]](buf, start, n, final)
             if status == _OK:
                 if self._base + start < self._span_end:
                     self._span_end = self._base + start
@@ -536,31 +604,7 @@ class Framer:
             acc.clear()
         elif pos:
             del acc[:pos]
-        return out
-
-    def _whole_binary(self, acc: bytearray) -> Frame | None:
-        """The buffer as one standard long binary log with a good CRC and a generated decoder,
-        taken like the inline path of :meth:`_scan` takes it; None (nothing changed) otherwise."""
-        raw = bytes(acc)
-        if _crc32(raw, 0xFFFFFFFF) != 0xFFFFFFFF:
-            return None
-        try:
-            frame: Frame | None = _FAST_FRAMES_GET(raw[4] | raw[5] << 8, _fast_raw_frame)(raw)
-        except KeyError:
-            return None
-        if frame is None:
-            return None
-        base = self._base
-        if self._span_end > base:  # an accepted frame ends the rejected span
-            self._span_end = base
-        stats = self._stats
-        stats.frames[_BINARY] += 1
-        stats.bytes_in_frames += len(raw)
-        self._base = base + len(raw)
-        acc.clear()
-        self._wake_len = _AFTER_FRAME_LEN
-        self._wake_set, self._wake_search = _WAKE_AFTER_FRAME
-        return frame
+        return tuple(out)
 
     def _in_span(self, start: int, reason: SkipReason) -> bool:
         return self._base + start < self._span_end and self._span_reason is reason
@@ -574,7 +618,7 @@ class Framer:
             self._span_end = b
             self._span_reason = reason
 
-    def _skip(self, buf: bytes, start: int, end: int) -> None:
+    def _skip(self, buf: bytes | bytearray, start: int, end: int) -> None:
         """Count buf[start:end] as skipped: by the rejected span's reason, else garbage/line ends."""
         a = self._base + start
         b = self._base + end

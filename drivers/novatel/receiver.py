@@ -654,7 +654,7 @@ class NovatelReceiver:
             if frames:
                 self._deliver(self._clock.now_ns(), b"", frames)
 
-    def _deliver(self, host_ns: int, data: bytes, frames: list[Frame]) -> None:
+    def _deliver(self, host_ns: int, data: bytes, frames: tuple[Frame, ...]) -> None:
         with self._state_lock:
             if data:
                 self._last_rx_ns = host_ns
