@@ -26,11 +26,13 @@ one call costs less than these floors' 3x (the ``worst`` stream: most of its byt
 by one C-level search or CRC in one call), no feed written in Python meets the goal on it; the
 floors say by how much.
 
-Measured on a shared 2-CPU machine under load (7 rounds; min / median / max): ``receiver`` 1-byte
-feed 2.81 / 3.11 / 3.51x one call, with the no-op floor at 0.58 / 0.74 / 0.99x and the append-only
-floor at 1.07 / 1.28 / 1.65x: the floors plus the one call's own work (1x) leave about 0.7x for
-everything a framer does per byte and per frame, so the goal is at the edge and is not met reliably
-on that machine. ``worst``: 1-byte 6.0 / 10.5 / 12.4x, no-op floor 1.5 / 2.6 / 2.8x. Run::
+Measured on a shared 2-CPU machine under load (load average 9-40), four runs of 7-11 rounds:
+``receiver`` 1-byte feed medians 3.09-3.40x one call (per-round 2.4-5.3x), with the no-op floor's
+medians at 0.74-0.84x and the append-only floor's at 1.26-1.40x: the floors plus the one call's own
+work (1x) leave about 0.5-0.7x for everything a framer does per byte and per frame, which is less
+than this framer takes (a length comparison per byte, two looks per binary log, a few per text
+frame), so the goal is not met on that machine. ``worst``: 1-byte medians 9.7-11.4x, no-op floor
+2.5-3.2x. Run::
 
     python benchmarks/bench_framer_chunking.py [--mb 1] [--rounds 5]
 """

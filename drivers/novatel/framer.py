@@ -50,14 +50,15 @@ are still held (:attr:`Framer.pending_bytes`) are counted in the stats once a sc
 them.
 
 A 1-byte feed that changes no verdict appends the byte, compares the buffer's length with the end of
-the frame in progress (the rest of a binary log or RTCM3 frame, a text log's CRC digits) or, when a
-byte may end the wait, with the wait's length and makes one set lookup, and returns the shared empty
-tuple. On a receiver's stream what a 1 MB one-byte-at-a-time feed costs beyond that is the floor of
-any feed written in Python: the call itself (a feed that does nothing: 0.6-1.0x one 1 MB call),
-keeping the byte (a feed that only appends it: 1.1-1.7x) and the one call's own work (1x); measured
-with ``benchmarks/bench_framer_chunking.py`` on a shared machine, this framer takes 2.8-3.5x (median
-3.1x). Streams that one call passes over at C speed (long runs that one search or CRC skips) cost
-more in ratio: there the no-op floor alone is 1.5-2.8x.
+the frame in progress (the rest of a binary log or RTCM3 frame) or, when a byte may end the wait (a
+text frame's ``*`` or CRC digits, the bytes after a frame, garbage), with the wait's length and makes
+one set lookup, and returns the shared empty tuple. Most of what a 1 MB one-byte-at-a-time feed
+costs on a receiver's stream is the floor of any feed written in Python: the call itself (a feed
+that does nothing: medians 0.74-0.84x one 1 MB call), keeping the byte (a feed that only appends it:
+1.26-1.40x) and the one call's own work (1x); measured with ``benchmarks/bench_framer_chunking.py``
+on a shared, loaded machine this framer takes medians of 3.1-3.4x, so the 3x goal is not met there.
+Streams that one call passes over at C speed (long runs that one search or CRC skips) cost more in
+ratio: there the no-op floor alone is 2.5-3.2x.
 """
 
 from __future__ import annotations
@@ -315,7 +316,7 @@ class Framer:
         # The 1-byte chunks that are not of _wake_set (a 1-byte feed's test is one set lookup).
         self._quiet = _QUIET[self._wake_set]
         # _wake_len when no byte ends the wait (_wake_set None), else 0: below it, feed() keeps the
-        # bytes after one comparison (the rest of a binary log, an RTCM3 frame or a text log's CRC).
+        # bytes after one comparison (the rest of a binary log or an RTCM3 frame).
         self._quiet_len = 0
         self._abbrev_resume: tuple[int, int, int] | None = None  # stream offsets (start, next line, end)
         self._base = 0  # stream offset of self._acc[0]
