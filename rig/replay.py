@@ -750,11 +750,12 @@ class Replayer:
     a test's) the clock's own sleep finishes the wait. ``spin_s=0`` waits with the clock's sleep alone. The
     spin is short (0.3 ms) because it costs CPU time, and the fair scheduler lets a thread that used more of
     it wait longer when it wakes: a recorded bus's frames are about 2.4 ms apart (median), so a 1.5 ms spin
-    kept the player on a CPU 60 % of the time, and on a loaded 2-core host about three times as many frames
-    went out over 1 ms late as with 0.3 ms (``benchmarks/bench_replay.py``). For the same reason the player
-    thread asks the kernel for a short time slice, ``slice_s`` (Linux >= 6.12, no privilege needed; None
-    leaves the scheduler's default): a thread with a shorter slice gets an earlier deadline and takes the
-    CPU from a busy process sooner when it wakes (about half the frames over 1 ms under load).
+    kept the player on a CPU 60 % of the time, and on a 2-core host at a load of 9-13 about three times as
+    many frames went out over 1 ms late as with 0.3 ms (``benchmarks/bench_replay.py``). For the same reason
+    the player thread asks the kernel for a short time slice, ``slice_s`` (Linux >= 6.12, no privilege
+    needed; None leaves the scheduler's default): a thread with a shorter slice gets an earlier deadline and
+    takes the CPU from a busy process sooner when it wakes (35-45 % fewer frames over 1 ms at a load of
+    7-13). At a load over about 17 neither makes a difference: the player waits for the CPU for many ms.
 
     Frames sharing a due time go out back to back after one wait. The python-can messages are built ahead
     (``build_ahead`` at a time, while there is time to spare), so nothing is encoded at a due time. The
