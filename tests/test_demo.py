@@ -61,9 +61,9 @@ def test_calibration_recovers_the_injected_offsets_within_the_stated_uncertainty
     # estimator's coverage over many draws is proven in tests/calibration (Monte-Carlo, 96-99 %).
     # The seed is fixed but the draw is not: which samples the governed clock lets through, and when, moves
     # with the host's scheduling. So one run is one draw, and a 95 % interval alone would fail one run in
-    # twenty by design: each error is held inside the 99.9 % interval (u95 x 3.29/1.96). Seven demo runs
-    # (idle and under 6 busy processes) gave optical-zero errors of 0.02-1.08 x u95 and mounting-offset
-    # errors of 0.03-0.40 x u95.
+    # twenty by design: each error is held inside the 99.9 % interval (u95 x 3.29/1.96). Demo runs (idle
+    # and under 6 busy processes) gave optical-zero errors of 0.02-1.08 x u95 (7 runs) and mounting-offset
+    # errors of 0.26-1.09 x u95 (6 runs).
     k999 = 3.29 / 1.96
     assert abs(mount["offset_deg"] - sim.true_mount_offset_deg) <= k999 * mount["u95_deg"]
     assert mount["u95_deg"] < 0.1
