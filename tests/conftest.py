@@ -77,6 +77,7 @@ def _scope_of(nodeid: str) -> str:
 _TESTS = Path(__file__).resolve().parent
 
 
+@pytest.hookimpl(optionalhook=True)  # a hook of pytest-xdist's: no error under `-p no:xdist`
 def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | None:
     """`pytest -n N --dist loadscope` (the README's test command) schedules by `_scope_of`.
 
