@@ -19,7 +19,6 @@ import errno
 import fcntl
 import logging
 import os
-import select
 import struct
 import sys
 import termios
@@ -50,8 +49,6 @@ class PtyPort:
         self.bytes_written = 0
         self.bytes_dropped = 0
         self.bytes_read = 0
-        self._read_upto = 0
-        """``bytes_written`` when the other side was last seen to have read everything."""
         self._watch: _OpenWatch | None = None
 
     @property
@@ -90,7 +87,6 @@ class PtyPort:
             os.close(slave)
             raise DeviceError(f"sim port {self.name}: cannot link {self.path}: {exc}") from exc
         self._master, self._slave, self.device_path = master, slave, device
-        self._read_upto = self.bytes_written
         self._watch = _OpenWatch.of(device)
         log.debug("sim port %s plugged: %s -> %s", self.name, self.path, device)
 
@@ -134,34 +130,7 @@ class PtyPort:
         return n
 
     def unread(self) -> int:
-        """Bytes written here that the other side may not have read yet (0 when unplugged): everything
-        written since it was last seen to have read all there was.
-
-        The line discipline's count (FIONREAD) cannot tell: a write lands in the pty's flip buffers,
-        which a kernel worker moves to the line discipline later (on a busy host 12 KB written read as
-        0 unread), and the line discipline holds at most 4 KB. A poll of the slave first flushes the
-        flip buffers when the line discipline is empty, so "no input" is the one sure sign that the
-        other side has read everything."""
-        if self._slave is None:
-            return 0
-        try:
-            drained = not select.select([self._slave], [], [], 0)[0]
-        except (OSError, ValueError):
-            return 0
-        if drained:
-            self._read_upto = self.bytes_written
-        return self.bytes_written - self._read_upto
-
-    def reads_seen(self) -> int:
-        """How many times (at least) the other side has read since plugged (0 without inotify)."""
-        if self._watch is None:
-            return 0
-        self._watch.count()
-        return self._watch.reads
-
-    def in_line_discipline(self) -> int:
-        """Bytes the slave's line discipline holds (FIONREAD; 0 when unplugged): what the other side has
-        not read of what has reached it (at most 4 KB; call :meth:`unread` first to flush)."""
+        """Bytes written here that the other side has not read yet (0 when unplugged)."""
         if self._slave is None:
             return 0
         buf = bytearray(4)
@@ -200,7 +169,6 @@ class PtyPort:
         return None
 
 
-_IN_ACCESS = 0x01
 _IN_OPEN = 0x20
 _IN_CLOSE = 0x08 | 0x10  # IN_CLOSE_WRITE | IN_CLOSE_NOWRITE
 _IN_Q_OVERFLOW = 0x4000
@@ -209,15 +177,12 @@ _EVENT = struct.Struct("iIII")
 
 class _OpenWatch:
     """Opens minus closes of a device node by anyone since the watch started (Linux inotify): a
-    close event comes with the last close of an open file description, also when its process dies;
-    and whether anyone has read it since (:attr:`reads`, counted by :meth:`count`)."""
+    close event comes with the last close of an open file description, also when its process dies."""
 
     def __init__(self, fd: int) -> None:
         self._fd = fd
         self._open = 0
         self._lost = False
-        self.reads = 0
-        """Read events seen (consecutive ones are merged into one by inotify)."""
 
     @classmethod
     def of(cls, path: str) -> _OpenWatch | None:
@@ -232,7 +197,7 @@ class _OpenWatch:
             log.info("sim port %s: no inotify (%s): cannot tell whether a reader has it open",
                      path, os.strerror(ctypes.get_errno()))
             return None
-        if int(add(fd, path.encode(), _IN_ACCESS | _IN_OPEN | _IN_CLOSE)) < 0:
+        if int(add(fd, path.encode(), _IN_OPEN | _IN_CLOSE)) < 0:
             log.info("sim port %s: cannot watch it (%s)", path, os.strerror(ctypes.get_errno()))
             os.close(fd)
             return None
@@ -251,8 +216,6 @@ class _OpenWatch:
                 i += _EVENT.size + length
                 if mask & _IN_Q_OVERFLOW:
                     self._lost = True
-                elif mask & _IN_ACCESS:
-                    self.reads += 1
                 elif mask & _IN_OPEN:
                     self._open += 1
                 elif mask & _IN_CLOSE:

@@ -140,11 +140,6 @@ class _PortState:
     written: deque[tuple[int, int]] = field(default_factory=deque)
     """(bytes written on the pty after a write, clock time the write completed): what a reader may still owe."""
     consumed: int = 0
-    """Bytes written that the reader has surely read (:meth:`PtyPort.unread`)."""
-    inq: int = 0
-    """Bytes its line discipline held at the last look (that count falls only when the reader reads)."""
-    reads: int = 0
-    """Reads of the port seen at the last look (:meth:`PtyPort.reads_seen`)."""
     read_seen: bool = False
     """Someone reads this port (only then does a governed clock wait for its reader)."""
 
@@ -817,17 +812,11 @@ class SimReceiver(abc.ABC):
                 st.written.clear()
                 st.read_seen = False
                 st.consumed = pty.bytes_written - pty.unread()
-                st.inq = pty.in_line_discipline()
-                st.reads = pty.reads_seen()
                 continue
-            consumed = pty.bytes_written - pty.unread()  # (flushes the flip buffers when nothing is unread)
-            inq = pty.in_line_discipline()
-            reads = pty.reads_seen()
-            if consumed > st.consumed or inq < st.inq or reads > st.reads:  # it read all there was, or some
+            consumed = pty.bytes_written - pty.unread()
+            if consumed > st.consumed:
+                st.consumed = consumed
                 st.read_seen = True
-            st.consumed = max(st.consumed, consumed)
-            st.inq = inq
-            st.reads = reads
             written = st.written
             while written and written[0][0] <= consumed:
                 written.popleft()
