@@ -152,7 +152,8 @@ def _record(
     ds = load_recording(out / "demo")
     size = sum(p.stat().st_size for p in summary.parts)
     health = rec.world.health()
-    skipped = sum(v.get("frames_skipped", 0) + v.get("bytes_overrun", 0) for v in health.values())
+    skipped = sum(v.get("frames_skipped", 0) + v.get("bytes_overrun", 0) + v.get("bytes_dropped", 0)
+                  for v in health.values())
     fixed = []
     for rx in ds.receivers():
         g = ds.gnss(rx)

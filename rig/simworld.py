@@ -322,6 +322,8 @@ class SimWorld:
         self._session: RecordSession | None = None
         self._final_health: dict[str, dict[str, int]] = {}
         self._releases_seen = 0
+        self._losses_reported: dict[tuple[str, str], int] = {}
+        self._losses_polled = -math.inf
 
     # --- life cycle ----------------------------------------------------------------------------
 
@@ -366,15 +368,17 @@ class SimWorld:
 
     def health(self) -> dict[str, dict[str, int]]:
         """What the simulated devices could not deliver: ECU frames skipped (late), receiver log
-        bytes dropped because the port's baud rate could not carry them, DAQ segments started.
-        Kept after :meth:`stop`."""
+        bytes dropped because the port's baud rate could not carry them (``bytes_overrun``) or because
+        the pty was full while a reader had it open (``bytes_dropped``, and ``bytes_dropped:<port>``
+        for each port that lost any), DAQ segments started. Kept after :meth:`stop`; with the devices
+        in their own process, their figures as of the last :meth:`report_device_losses` (or stop)."""
         out = dict(self._final_health)
         if self._host is not None:
             out.update(self._host.health)
         for channel, ecu in self.ecus.items():
             out[f"ecu:{channel}"] = {"frames_sent": ecu.frames_sent, "frames_skipped": ecu.frames_skipped}
         for name, rx in self.receivers.items():
-            out[f"gnss:{name}"] = {"bytes_overrun": rx.bytes_overrun(), "errors": int(rx.error is not None)}
+            out[f"gnss:{name}"] = _receiver_health(rx)
         out["daq"] = {"segments": len(self.daq_backends)}
         return out
 
@@ -455,6 +459,39 @@ class SimWorld:
                 participant=rel.participant, reason=rel.reason.name.lower(), detail=rel.detail,
                 held_wall_s=rel.held_wall_ns / 1e9,
             )
+
+    def report_device_losses(self, *, final: bool = False) -> None:
+        """Write a warning to ``/rig/events`` for each simulated receiver port whose pty dropped bytes
+        while a reader had it open (the reader was behind: GNSS logs lost): once when it is first
+        seen, and with ``final`` (at the end) again for every port whose total grew since. Looks at
+        most every :data:`DEVICE_LOSS_POLL_S` (the devices in their own process are asked over
+        their pipe) unless ``final``."""
+        if self._truth_source is None:
+            return
+        now = time.monotonic()
+        if not final and now < self._losses_polled + DEVICE_LOSS_POLL_S:
+            return
+        self._losses_polled = now
+        if self._host is not None:
+            self._host.poll_health()
+        for key, figures in sorted(self.health().items()):
+            if not key.startswith("gnss:"):
+                continue
+            rx = key.partition(":")[2]
+            for name, n in sorted(figures.items()):
+                if not name.startswith("bytes_dropped:"):
+                    continue
+                port = name.partition(":")[2]
+                seen = self._losses_reported.get((rx, port))
+                if n <= (seen or 0) or (seen is not None and not final):
+                    continue
+                self._losses_reported[(rx, port)] = n
+                self._truth_source.event(
+                    EventKind.WARNING,
+                    f"simulated {rx} dropped {n:,} bytes on {port}".replace(",", " ")
+                    + ": the pty was full (reader behind) — GNSS logs lost",
+                    severity=Severity.WARNING, simulation=True, receiver=rx, port=port, bytes_dropped=n,
+                )
 
     def wait_end(self, stop: threading.Event | None = None) -> bool:
         """Wait until the drive has ended on the clock; False if ``stop`` was set first."""
@@ -665,6 +702,7 @@ class SimWorld:
         if self.clock is not None and self._truth_source is not None:
             self._write_truth_until(self.clock.now_ns())
             self.report_governor_releases()
+            self.report_device_losses(final=True)
             stats = self.governor_stats()
             if stats is not None:
                 self._truth_source.event(
@@ -735,6 +773,11 @@ class SimWorld:
 _HOST_START_TIMEOUT_S = 120.0
 """Longest wait for the device process to import, build its world and start its devices."""
 _HOST_STOP_TIMEOUT_S = 15.0
+_HOST_HEALTH_TIMEOUT_S = 2.0
+"""Longest wait for the device process to report its figures while it runs."""
+DEVICE_LOSS_POLL_S = 1.0
+"""How often (wall s) a recording looks whether a simulated device lost bytes
+(:meth:`SimWorld.report_device_losses`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -757,7 +800,8 @@ class _DeviceHost:
     time); parent → ``("start", clock)`` with the shared :class:`ScaledClock` (CLOCK_MONOTONIC is
     system-wide, so both processes read the same simulated time); child → ``("ready", ports,
     can_port)``: each receiver's (command port, correction port) paths and the TCP port of a
-    socketcand server on 127.0.0.1 serving the virtual CAN channels; parent → ``("stop",)``; child →
+    socketcand server on 127.0.0.1 serving the virtual CAN channels; parent → ``("health", n)``, child
+    → ``("health", n, health)`` as often as asked (:meth:`poll_health`); parent → ``("stop",)``; child →
     ``("stopped", health)``. A failure in the child arrives as ``("error", text)``; the child also
     stops when the pipe closes (the parent died).
     """
@@ -769,6 +813,7 @@ class _DeviceHost:
         self._ports: dict[str, tuple[str, str | None]] = {}
         self._can_port: int | None = None
         self.health: dict[str, dict[str, int]] = {}
+        self._health_asked = 0
 
     def spawn(self) -> None:
         w = self._world
@@ -834,6 +879,28 @@ class _DeviceHost:
         return dataclasses.replace(config, interface="socketcand", options=options,
                                    timestamp_source=TimestampSource.HOST)
 
+    def poll_health(self, timeout_s: float = _HOST_HEALTH_TIMEOUT_S) -> None:
+        """Update :attr:`health` with the devices' figures now (kept as they were if the process
+        does not answer within ``timeout_s``; a late answer is skipped by the next poll)."""
+        conn, proc = self._conn, self._proc
+        if conn is None or proc is None:
+            return
+        self._health_asked += 1
+        try:
+            conn.send(("health", self._health_asked))
+            deadline = time.monotonic() + timeout_s
+            while conn.poll(max(0.0, deadline - time.monotonic())):
+                msg = conn.recv()
+                if msg[0] == "health" and msg[1] == self._health_asked:
+                    self.health = msg[2]
+                    return
+                if msg[0] == "error":
+                    log.error("sim world: device process: %s", msg[1])
+        except (OSError, EOFError) as exc:
+            log.warning("sim world: cannot ask the device process for its figures: %s", exc)
+            return
+        log.warning("sim world: the device process did not report its figures within %.1f s", timeout_s)
+
     def stop(self) -> None:
         proc, conn = self._proc, self._conn
         if proc is None or conn is None:
@@ -896,8 +963,9 @@ def _device_host_main(conn: Connection) -> None:
             server.start()
             can_port = server.address[1]
         conn.send(("ready", ports, can_port))
-        while conn.recv()[0] != "stop":
-            pass
+        while (msg := conn.recv())[0] != "stop":
+            if msg[0] == "health":
+                conn.send(("health", msg[1], world.health()))
     except EOFError:
         log.warning("sim device process: the recording process went away; stopping")
     except BaseException as exc:
@@ -919,6 +987,15 @@ def _device_host_main(conn: Connection) -> None:
 
 GOVERNED_SWITCH_INTERVAL_S = 0.0005
 """Interpreter switch interval (s) of the processes of a governed simulated recording."""
+
+
+def _receiver_health(rx: SimReceiver) -> dict[str, int]:
+    """A simulated receiver's part of :meth:`SimWorld.health`."""
+    lost = rx.bytes_lost()
+    out = {"bytes_overrun": rx.bytes_overrun(), "errors": int(rx.error is not None),
+           "bytes_dropped": sum(lost.values())}
+    out.update((f"bytes_dropped:{port}", n) for port, n in sorted(lost.items()) if n > 0)
+    return out
 
 
 def can_reader_name(channel: str) -> str:
@@ -1030,6 +1107,7 @@ def record_simulated(
             pending = sorted(actions, key=lambda a: a[0])
             while not (stop.is_set() or session.failed.is_set()):
                 world.report_governor_releases()
+                world.report_device_losses()
                 now = clock.now_ns()
                 while pending and now >= world.timebase.truth_start_ns + round(pending[0][0] * NS_PER_S):
                     pending.pop(0)[1](world, session)

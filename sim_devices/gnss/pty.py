@@ -48,6 +48,9 @@ class PtyPort:
         self._slave: int | None = None
         self.bytes_written = 0
         self.bytes_dropped = 0
+        self.bytes_lost = 0
+        """The part of ``bytes_dropped`` dropped while someone had the port open (or it could not be
+        told): bytes a reader was there to get and never will (its side of the pty was full)."""
         self.bytes_read = 0
         self._watch: _OpenWatch | None = None
 
@@ -113,7 +116,9 @@ class PtyPort:
         return self._watch.count() if self._watch is not None else None
 
     def write(self, data: bytes) -> int:
-        """Write without blocking; bytes that do not fit (nobody reading) are dropped and counted."""
+        """Write without blocking; bytes that do not fit (nobody reading, or the reader behind) are
+        dropped and counted in :attr:`bytes_dropped`, and in :attr:`bytes_lost` when a reader has the
+        port open."""
         if self._master is None:
             self.bytes_dropped += len(data)
             return 0
@@ -126,7 +131,10 @@ class PtyPort:
                 raise
             n = 0
         self.bytes_written += n
-        self.bytes_dropped += len(data) - n
+        if n < len(data):
+            self.bytes_dropped += len(data) - n
+            if self.readers() != 0:
+                self.bytes_lost += len(data) - n
         return n
 
     def unread(self) -> int:

@@ -11,7 +11,8 @@ faster than real time), and
   asynchronous logs (MARKPOS …), at every event; ``ONCE``, ``ONNEXT``, ``ONMARK``;
 - writes each message ``output_latency_s`` (+ uniform jitter) after its data time, serialised on
   its port at the port's baud rate (a 104-byte BESTPOSB takes 9 ms at 115200 Bd); logs beyond what
-  the baud rate carries (more than 1 s of backlog) are dropped and counted (:meth:`bytes_overrun`);
+  the baud rate carries (more than 1 s of backlog) are dropped and counted (:meth:`bytes_overrun`),
+  and so are bytes the pty could not take while a reader had it open (:meth:`bytes_lost`);
 - routes a log to the port it was requested on (the port the command came in on, or a named
   port); a named port that is not wired to a pty swallows its output, as on a real receiver.
 
@@ -355,6 +356,12 @@ class SimReceiver(abc.ABC):
     def bytes_overrun(self, port: str | None = None) -> int:
         """Bytes of logs dropped because the port's baud rate could not carry them."""
         return self._ports[port or self.main_port].bytes_overrun
+
+    def bytes_lost(self) -> dict[str, int]:
+        """Bytes written to each port (by name) that its pty could not take while a reader had it
+        open: the reader was behind and they are lost (:attr:`PtyPort.bytes_lost`). Readable from any
+        thread."""
+        return {name: st.pty.bytes_lost for name, st in list(self._ports.items()) if st.pty is not None}
 
     def logged(self) -> list[tuple[str, str, str, float]]:
         """The active log requests as (port, name + format suffix, trigger, period s)."""

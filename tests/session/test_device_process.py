@@ -32,7 +32,12 @@ def test_devices_in_their_own_process_record_every_stream(tmp_path: Path) -> Non
     assert multiprocessing.active_children() == []  # the device process has ended and been joined
     health = rec.world.health()
     assert health["ecu:vsc-sim"]["frames_sent"] > 1000 and health["ecu:vsc-sim"]["frames_skipped"] == 0
-    assert all(health[f"gnss:{rx}"] == {"bytes_overrun": 0, "errors": 0} for rx in ("base", "rover_a", "rover_b"))
+    for rx in ("base", "rover_a", "rover_b"):
+        h = health[f"gnss:{rx}"]
+        assert h["bytes_overrun"] == 0 and h["errors"] == 0, h
+        # log bytes lost to a reader that fell behind come over from the device process (issue 15: a
+        # loaded host can still cause them, so they are reported, see test_device_losses, not held at 0)
+        assert h["bytes_dropped"] == sum(n for k, n in h.items() if k.startswith("bytes_dropped:")), h
 
     ds = load_recording(tmp_path / "proc", gnss_min_latency_s=gnss_min_latency_s(cfg))
     for rx in ("rover_a", "rover_b"):
