@@ -529,6 +529,20 @@ class ClockEstimator:
         r = np.asarray([p[1] for p in pairs], dtype=np.int64)
         return (r - m(d)).astype(np.float64)
 
+    def _bin_heights(self) -> tuple[npt.NDArray[Any], int, FloatArray] | None:
+        """(bin device offsets, device origin ns, |lowest pair of each bin − map| ns), or None before two bins."""
+        with self._lock:
+            if self._n == 0:
+                return None
+            x, y = self._points()
+            x0, base = self._x0, self._y_base
+        if x.size < 2 or x0 is None:
+            return None
+        m = self.mapping()
+        dev = x0 + x.astype(np.int64)
+        ref = dev + base + y.astype(np.int64)
+        return x, x0, np.abs(ref - m(dev)).astype(np.float64)
+
     def envelope_error_ns(self, percentile: float = 95.0, group_s: float = 1.0) -> float | None:
         """``percentile`` of |lowest pair − map| per ``group_s`` (ns): the time-base gate's previous figure.
 
@@ -542,17 +556,10 @@ class ClockEstimator:
         sent in a burst) has its minimum far above it: the map there rests on other groups, and its
         error is unknown up to that height. None before two bins exist.
         """
-        with self._lock:
-            if self._n == 0:
-                return None
-            x, y = self._points()
-            x0, base = self._x0, self._y_base
-        if x.size < 2 or x0 is None:
+        bins = self._bin_heights()
+        if bins is None:
             return None
-        m = self.mapping()
-        dev = x0 + x.astype(np.int64)
-        ref = dev + base + y.astype(np.int64)
-        r = np.abs(ref - m(dev)).astype(np.float64)
+        x, _x0, r = bins
         group = (x // max(int(group_s * 1e9), self._bin_ns)).astype(np.int64)
         starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
         return float(np.percentile(np.minimum.reduceat(r, starts), percentile))
@@ -565,17 +572,10 @@ class ClockEstimator:
         smallest |bin minimum − map| inside it: the floor the lowest pairs held for that whole window.
         Device times are the windows' first pairs. None before two bins.
         """
-        with self._lock:
-            if self._n == 0:
-                return None
-            x, y = self._points()
-            x0, base = self._x0, self._y_base
-        if x.size < 2 or x0 is None:
+        bins = self._bin_heights()
+        if bins is None:
             return None
-        m = self.mapping()
-        dev = x0 + x.astype(np.int64)
-        ref = dev + base + y.astype(np.int64)
-        r = np.abs(ref - m(dev)).astype(np.float64)
+        x, x0, r = bins
         key = (x // self._bin_ns).astype(np.int64)
         key -= key[0]
         # a stream shorter than two windows is judged on windows of half its length (a starved reader's
