@@ -167,6 +167,28 @@ def _check_new(path: Path, overwrite: bool) -> None:
         raise SessionFileError(f"{path} already exists (remove it or pass --overwrite)")
 
 
+def _export_dir(out_dir: Path | str) -> Path:
+    """The export directory, made when missing (a SessionFileError naming it when it cannot be)."""
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SessionFileError(f"{out}: cannot create the export directory: {exc}") from exc
+    return out
+
+
+def _single_file_export(
+    path: Path | str, out_dir: Path | str, suffix: str, overwrite: bool,
+) -> tuple[SessionStream, Path]:
+    """The session's stream and its one export file ``<out_dir>/<session><suffix>``: refused when it exists and
+    ``overwrite`` is not set (before the directory is made), the directory made."""
+    stream = open_stream(path)
+    final = Path(out_dir) / f"{stream.name}{suffix}"
+    _check_new(final, overwrite)
+    _export_dir(out_dir)
+    return stream, final
+
+
 def _partial(path: Path) -> Path:
     return path.with_name(f".{path.name}.partial")
 
@@ -195,11 +217,7 @@ def export_raw_gnss(path: Path | str, out_dir: Path | str, *, overwrite: bool = 
     (unless ``overwrite``) or a write error, and :class:`~vsccore.errors.AnalysisError` when the
     session has no raw GNSS or correction stream.
     """
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SessionFileError(f"{out}: cannot create the export directory: {exc}") from exc
+    out = _export_dir(out_dir)
     streams: dict[str, _Stream] = {}
     warnings: list[str] = []
     relay_format: str | None = None
@@ -340,11 +358,7 @@ def export_csv(path: Path | str, out_dir: Path | str, *, overwrite: bool = False
     """
     from rig.dataset import load_session
 
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SessionFileError(f"{out}: cannot create the export directory: {exc}") from exc
+    out = _export_dir(out_dir)
     stream = open_stream(path)
     small = sorted({t for part in stream.parts for t in _plan_part(part).topics.values()
                     if t == T.TOPIC_EVENTS or (t.startswith("/gnss/") and _group_of_topic(t) is not None)})
@@ -1607,14 +1621,7 @@ def export_mdf4(
                           f"(pip install '{MF4_EXTRA}')") from None
     from datetime import UTC, datetime
 
-    out = Path(out_dir)
-    stream = open_stream(path)
-    final = out / f"{stream.name}.mf4"
-    _check_new(final, overwrite)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SessionFileError(f"{out}: cannot create the export directory: {exc}") from exc
+    stream, final = _single_file_export(path, out_dir, ".mf4", overwrite)
     mdf = MDF(version="4.10")
     mdf.header.start_time = datetime.fromtimestamp(stream.start_ns / 1e9, tz=UTC)
     attachment: Any = None

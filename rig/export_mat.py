@@ -58,11 +58,10 @@ from rig.export import (
     GroupChunk,
     GroupKind,
     SessionStream,
-    _check_new,
     _partial,
     _progress_fn,
+    _single_file_export,
     iter_groups,
-    open_stream,
 )
 from vsccore.errors import AnalysisError, ConfigError, SessionFileError
 
@@ -554,14 +553,7 @@ def export_mat(
     except ValueError:
         raise ConfigError(f"rig export --mat-version: {version!r} is not one of "
                           f"{', '.join(v.value for v in MatVersion)}") from None
-    out = Path(out_dir)
-    stream = open_stream(path)
-    final = out / f"{stream.name}.mat"
-    _check_new(final, overwrite)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SessionFileError(f"{out}: cannot create the export directory: {exc}") from exc
+    stream, final = _single_file_export(path, out_dir, ".mat", overwrite)
     if ver is MatVersion.V5:
         return _export_v5(stream, final, topics, progress, validation)
     return _export_v73(stream, final, topics, progress, validation, chunk_bytes)
