@@ -17,6 +17,7 @@ from rig.dataset import load_session
 from rig.export import export_mat, export_mdf4, export_parquet, iter_groups, open_stream, unit_suffix
 from tests.dataset.synth import DBC, Synth, utc
 from tests.dataset.synth import write_session as write_dataset_session
+from tests.inspect.recorded import record_validating_drive
 from vsccore.errors import ConfigError, SessionFileError
 
 runner = CliRunner()
@@ -323,25 +324,8 @@ def test_mat_sideslip_on_one_time_vector(tmp_path: Path) -> None:
     import h5py
     from scipy.io import loadmat
 
-    from rig.config import load_session as load_config
-    from rig.demo import demo_config_path
-    from rig.simworld import record_simulated
-    from sim_devices.vehicle import Drive, VehicleParams, make_scenario, simulate
-    from tests.validate_cli.conftest import FAST_RTK
-
-    cfg = load_config(demo_config_path(), {"simulation.gnss.position_noise_m": 0.01,
-                                            "simulation.true_mount_offset_deg": 0.0})
-    sim = cfg.simulation
-    assert sim is not None
-    drive = Drive([make_scenario("straight", speed_kmh=50.0, duration_s=4.0),
-                   make_scenario("double_lane_change", speed_kmh=50.0)], gap_s=2.0)
-    truth = simulate(drive, VehicleParams.from_mapping(cfg.profile.vehicle.model_dump()), rate_hz=1000.0,
-                     origin=(sim.origin_lat_deg, sim.origin_lon_deg, sim.origin_h_m),
-                     initial_heading_deg=sim.initial_heading_deg, seed=sim.seed)
-    rec = record_simulated(cfg, tmp_path, name="run", drive=drive, truth=truth, speed=2.5, rtk=FAST_RTK,
-                           config_path=demo_config_path())
-    assert rec.completed
-    report = export_mat(tmp_path / "run", tmp_path / "mat", topics=["gnss_*"])
+    run = record_validating_drive(tmp_path)
+    report = export_mat(run, tmp_path / "mat", topics=["gnss_*"])
     assert "sideslip" in report.files[0].source
     with h5py.File(report.files[0].path, "r") as h:
         s = h["sideslip"]

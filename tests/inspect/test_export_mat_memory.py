@@ -22,6 +22,7 @@ from rig.dataset import Session, load_session
 from rig.export import export_mat
 from tests.dataset.synth import Synth
 from tests.dataset.synth import write_session as write_dataset_session
+from tests.inspect.recorded import record_validating_drive
 
 SIDESLIP_FIELDS = ("time_ns", "time_s", "reference_rad", "reference_sigma_rad", "estimate_rad", "error_rad")
 
@@ -34,27 +35,7 @@ class Drive:
 @pytest.fixture(scope="module")
 def drive(tmp_path_factory: pytest.TempPathFactory) -> Drive:
     """A simulated drive that validates (dual-antenna RTK, the VSC's CAN bus with an interface clock)."""
-    from rig.config import load_session as load_config
-    from rig.demo import demo_config_path
-    from rig.simworld import record_simulated
-    from sim_devices.vehicle import Drive as SimDrive
-    from sim_devices.vehicle import VehicleParams, make_scenario, simulate
-    from tests.validate_cli.conftest import FAST_RTK
-
-    cfg = load_config(demo_config_path(), {"simulation.gnss.position_noise_m": 0.01,
-                                            "simulation.true_mount_offset_deg": 0.0})
-    sim = cfg.simulation
-    assert sim is not None
-    plan = SimDrive([make_scenario("straight", speed_kmh=50.0, duration_s=4.0),
-                     make_scenario("double_lane_change", speed_kmh=50.0)], gap_s=2.0)
-    truth = simulate(plan, VehicleParams.from_mapping(cfg.profile.vehicle.model_dump()), rate_hz=1000.0,
-                     origin=(sim.origin_lat_deg, sim.origin_lon_deg, sim.origin_h_m),
-                     initial_heading_deg=sim.initial_heading_deg, seed=sim.seed)
-    out = tmp_path_factory.mktemp("mat_memory")
-    rec = record_simulated(cfg, out, name="run", drive=plan, truth=truth, speed=2.5, rtk=FAST_RTK,
-                           config_path=demo_config_path())
-    assert rec.completed
-    return Drive(out / "run")
+    return Drive(record_validating_drive(tmp_path_factory.mktemp("mat_memory")))
 
 
 @pytest.fixture(scope="module")
