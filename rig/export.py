@@ -632,14 +632,20 @@ def _group_of_topic(topic: str) -> tuple[str, GroupKind] | None:
     return None
 
 
-def _schema_types(topic: str) -> dict[str, str]:
-    """JSON-schema type of each top-level property of a JSON topic (fixes column types across batches)."""
+def _json_topic_spec(topic: str) -> T.TopicSpec | None:
+    """The topic's spec in :data:`rig.topics.TOPICS` (the fixed rig topics by name, the others by pattern), or None."""
     try:
         if topic in (T.TOPIC_EVENTS, T.TOPIC_TIMEBASE, T.TOPIC_RELAY_STATS):
-            spec = next(s for s in T.TOPICS if s.pattern == topic)
-        else:
-            spec = T.spec_for_topic(topic)[0]
+            return next(s for s in T.TOPICS if s.pattern == topic)
+        return T.spec_for_topic(topic)[0]
     except (ValueError, StopIteration):
+        return None
+
+
+def _schema_types(topic: str) -> dict[str, str]:
+    """JSON-schema type of each top-level property of a JSON topic (fixes column types across batches)."""
+    spec = _json_topic_spec(topic)
+    if spec is None:
         return {}
     doc = spec.schema.document
     props: Mapping[str, Any] = doc.get("properties", {}) if isinstance(doc, Mapping) else {}
@@ -662,12 +668,8 @@ _Times = npt.NDArray[np.int64] | Sequence[int]
 
 def _topic_ns_fields(topic: str) -> dict[str, T.NsField]:
     """The integer-ns times of a JSON topic by column (``gps_time_ns``: ``gps_time`` as ``{week, tow_ns}``)."""
-    try:
-        if topic in (T.TOPIC_EVENTS, T.TOPIC_TIMEBASE, T.TOPIC_RELAY_STATS):
-            spec = next(s for s in T.TOPICS if s.pattern == topic)
-        else:
-            spec = T.spec_for_topic(topic)[0]
-    except (ValueError, StopIteration):
+    spec = _json_topic_spec(topic)
+    if spec is None:
         return {}
     return {f.column: f for f in spec.schema.ns_fields}
 
