@@ -491,8 +491,7 @@ def test_a_long_frame_fed_byte_by_byte_is_parsed_a_bounded_number_of_times(name:
     framer = Framer()
     calls = _count_parser_calls(framer)
     frames = []
-    for i in range(len(stream)):
-        frames += framer.feed(stream[i : i + 1])
+    frames += _feed_bytewise(framer, stream)
     frames += framer.finish()
     assert frames[-1].kind is FrameKind.PROMPT
     if name in ("binary", "ascii"):  # a long log, framed
@@ -564,18 +563,31 @@ def test_short_frames_come_out_of_the_byte_that_completes_them_in_every_waiting_
     assert framer.stats.bytes_skipped[SkipReason.GARBAGE] == 40 + 2 + 1 + 2 + 700
 
 
+def _feed_bytewise(framer: Framer, stream: bytes) -> list[Frame]:
+    """Feed ``stream`` one byte per call; the frames completed."""
+    frames: list[Frame] = []
+    for i in range(len(stream)):
+        frames += framer.feed(stream[i : i + 1])
+    return frames
+
+
+def _count_calls(framer: Framer, method: str) -> list[int]:
+    """Count the calls of one of the framer's methods (``calls[0]``)."""
+    calls = [0]
+    original = getattr(framer, method)
+
+    def counted(*args: Any, **kwargs: Any) -> Any:
+        calls[0] += 1
+        return original(*args, **kwargs)
+
+    setattr(framer, method, counted)
+    return calls
+
+
 def _count_scans(framer: Framer) -> list[int]:
     """Count the looks at the held bytes: the general path of ``feed`` (a scan, or the check of a
     binary log's header or last byte), taken when a fed byte could change a verdict."""
-    calls = [0]
-    look = framer._look
-
-    def counted() -> list[Frame]:
-        calls[0] += 1
-        return look()
-
-    framer._look = counted  # type: ignore[method-assign]
-    return calls
+    return _count_calls(framer, "_look")
 
 
 def test_binary_logs_fed_byte_by_byte_are_scanned_twice_each() -> None:
@@ -585,8 +597,7 @@ def test_binary_logs_fed_byte_by_byte_are_scanned_twice_each() -> None:
     scans = _count_scans(framer)
     stream = b"".join(logs)
     frames = []
-    for i in range(len(stream)):
-        frames += framer.feed(stream[i : i + 1])
+    frames += _feed_bytewise(framer, stream)
     assert signature(frames) == [(FrameKind.NOVATEL_BINARY, log) for log in logs]
     assert scans[0] == 2 * len(logs)
 
@@ -597,8 +608,7 @@ def test_text_frames_fed_byte_by_byte_are_scanned_a_few_times_each() -> None:
     framer = Framer()
     scans = _count_scans(framer)
     frames = []
-    for i in range(len(stream)):
-        frames += framer.feed(stream[i : i + 1])
+    frames += _feed_bytewise(framer, stream)
     assert len(frames) == 5 * len(texts)
     # first bytes (an NMEA '$' alone, then with its next byte), the '*', the CRC, the CR LF: 4 for an
     # ASCII log, 5 for a sentence (one scan per byte would be ~100)
@@ -607,15 +617,7 @@ def test_text_frames_fed_byte_by_byte_are_scanned_a_few_times_each() -> None:
 
 def _count_scan_calls(framer: Framer) -> list[int]:
     """Count the full scans of the held bytes (a look that only asks a waiting frame's parser is none)."""
-    calls = [0]
-    scan = framer._scan
-
-    def counted(final: bool, *given: Any) -> tuple[Frame, ...]:
-        calls[0] += 1
-        return scan(final, *given)
-
-    framer._scan = counted  # type: ignore[method-assign]
-    return calls
+    return _count_calls(framer, "_scan")
 
 
 @pytest.mark.parametrize("kinds", [(FrameKind.NOVATEL_ASCII,), (FrameKind.NMEA,), (FrameKind.RTCM3,)])
@@ -629,8 +631,7 @@ def test_a_text_or_rtcm_frame_fed_byte_by_byte_is_scanned_once_at_its_end(kinds:
     framer = Framer()
     scans = _count_scan_calls(framer)
     frames = []
-    for i in range(len(stream)):
-        frames += framer.feed(stream[i : i + 1])
+    frames += _feed_bytewise(framer, stream)
     frames += framer.finish()  # one more scan
     assert len(frames) == 5 * len(wires)
     assert scans[0] <= len(frames) + 1, f"{scans[0]} scans for {len(frames)} frames"
@@ -658,8 +659,7 @@ def test_garbage_fed_byte_by_byte_is_held_until_a_sync_byte() -> None:
     framer = Framer()
     scans = _count_scans(framer)
     frames = []
-    for i in range(len(stream)):
-        frames += framer.feed(stream[i : i + 1])
+    frames += _feed_bytewise(framer, stream)
     assert [f.kind for f in frames] == [FrameKind.NOVATEL_BINARY]
     # per run: one scan per 512 bytes, plus the first (still waiting as after a frame); the log after
     # garbage: at its sync byte, its third byte, its header and its end (one scan per byte: 10 104)
@@ -757,8 +757,7 @@ def test_an_abbreviated_log_of_many_lines_fed_byte_by_byte_is_scanned_a_few_time
 
     framer._scan = counted  # type: ignore[method-assign]
     frames = []
-    for i in range(len(stream)):
-        frames += framer.feed(stream[i : i + 1])
+    frames += _feed_bytewise(framer, stream)
     assert [f.kind for f in frames] == [
         FrameKind.NOVATEL_ABBREV,
         FrameKind.NOVATEL_BINARY,
