@@ -102,8 +102,11 @@ def write_session(out: Path, name: str = "synth", duration_s: float = 20.0, roll
     if simulated:
         session["simulation"] = {"gnss": {"output_latency_s": OUTPUT_LATENCY_S}}
     meta = session_metadata(session=session, vehicle={"wheelbase_m": 2.87}, calibration={"mount_offset_deg": 0.1})
+    # batch=1: the recorder checks the rollover size once per round, and a round takes up to ``batch``
+    # messages of each source; with the default 256 one round could write the whole 240 kB truth stream,
+    # so how many parts the session got (2 or 3) depended on how far the writer thread lagged behind.
     opts = RecorderOptions(min_free_bytes=0, warn_free_bytes=0, reserve_bytes=0, chunk_size=32 * 1024,
-                           rollover_size_bytes=rollover_bytes)
+                           rollover_size_bytes=rollover_bytes, batch=1)
     atts = [Attachment.from_file(DBC), Attachment("can0.roles.toml", "application/toml", ROLES.read_bytes())]
     gnss: dict[str, dict[str, np.ndarray]] = {}
     vx_all: list[np.ndarray] = []
