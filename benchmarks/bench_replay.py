@@ -30,10 +30,12 @@ average before it (the figures measure the host's scheduling as much as the play
 closing lines sum the runs per set-up: runs with every recorded frame within 1 ms, frames over 1 ms.
 
 ``--slice-us`` asks for a shorter scheduler time slice for the player thread (:class:`rig.replay.Replayer`'s
-``slice_s``). Variants (spin, slice) run interleaved, ``--repeat`` rounds.
+``slice_s``). ``--rt-priority`` puts the player thread on SCHED_FIFO at that priority (``rt_priority``; 0:
+ordinary scheduling; needs root or CAP_SYS_NICE). Variants (spin, slice, priority) run interleaved,
+``--repeat`` rounds.
 
 Run: ``.venv/bin/python benchmarks/bench_replay.py [--session PATH] [--speed X] [--repeat N] [--spin-ms MS ...]
-[--slice-us US ...] [--setup SETUP ...] [--stamp arrival|handled] [--stress N]``
+[--slice-us US ...] [--rt-priority P ...] [--setup SETUP ...] [--stamp arrival|handled] [--stress N]``
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ import argparse
 import itertools
 import multiprocessing
 import os
+import sys
 import tempfile
 import threading
 import time
@@ -151,8 +154,13 @@ def _socketcand_rx(host: str, port: int) -> CanBusConfig:
     return CanBusConfig(interface="socketcand", channel="vsc0", options={"host": host, "port": port}, name="rx")
 
 
-def _receiving_side(channel: str, stamp: str, count: int, conn: Connection) -> None:
-    """Child process of ``scand/out``: a socketcand server and the reader; sends the stages back."""
+def _receiving_side(channel: str, stamp: str, count: int, conn: Connection, rx_rt_priority: int = 0) -> None:
+    """Child process of ``scand/out``: a socketcand server and the reader; sends the stages back.
+    ``rx_rt_priority``: every thread of it on SCHED_FIFO at that priority (threads inherit the policy) and a
+    0.2 ms interpreter switch interval, as a bench's receiving side stamps in hardware, unaffected by load."""
+    if rx_rt_priority:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rx_rt_priority))
+        sys.setswitchinterval(0.0002)
     stages = ServerStages(channel, stamp)
     with SocketcandServer(stages.opener(), rawmode_settle_s=0.0) as server:
         host, port = server.address
@@ -164,7 +172,7 @@ def _receiving_side(channel: str, stamp: str, count: int, conn: Connection) -> N
 
 
 def play(plan: ReplayPlan, tx_spec: str, speed: float, spin_s: float,
-         slice_s: float | None) -> tuple[ReplayStats, np.ndarray]:
+         slice_s: float | None, rt_priority: int | None) -> tuple[ReplayStats, np.ndarray]:
     """Replay ``plan`` onto ``tx_spec``; the stats and the wall clock just before each ``send``."""
     bus = open_bus(parse_bus_spec(tx_spec))
     sent: list[int] = []
@@ -176,38 +184,41 @@ def play(plan: ReplayPlan, tx_spec: str, speed: float, spin_s: float,
 
     bus.send = noting_send  # type: ignore[method-assign]
     try:
-        stats = Replayer(plan, bus, ScaledClock(time.time_ns()), speed=speed, spin_s=spin_s, slice_s=slice_s).run()
+        stats = Replayer(plan, bus, ScaledClock(time.time_ns()), speed=speed, spin_s=spin_s, slice_s=slice_s,
+                         rt_priority=rt_priority).run()
     finally:
         bus.shutdown()
     return stats, np.asarray(sent, dtype=np.int64)
 
 
 def run_once(plan: ReplayPlan, setup: str, channel: str, speed: float, spin_s: float, slice_s: float | None,
-             stamp: str) -> tuple[ReplayStats, dict[str, np.ndarray]]:
+             rt_priority: int | None, stamp: str, rx_rt_priority: int = 0) -> tuple[ReplayStats, dict[str, np.ndarray]]:
     """One replay in ``setup``; the stats and each stage's per-frame times (ns), in send order."""
     n = len(plan)
     if setup == "virtual/in":
         with Receiver(CanBusConfig(interface="virtual", channel=channel, name="rx")) as rx:
-            stats, sent = play(plan, f"virtual:{channel}", speed, spin_s, slice_s)
+            stats, sent = play(plan, f"virtual:{channel}", speed, spin_s, slice_s, rt_priority)
             return stats, {"sent": sent, **rx.wait_for(n, 10.0)}
     if setup == "scand/in":
         stages = ServerStages(channel, stamp)
         with SocketcandServer(stages.opener(), rawmode_settle_s=0.0) as srv:
             host, port = srv.address
             with Receiver(_socketcand_rx(host, port)) as rx:
-                stats, sent = play(plan, f"socketcand:vsc0,host={host},port={port}", speed, spin_s, slice_s)
+                stats, sent = play(plan, f"socketcand:vsc0,host={host},port={port}", speed, spin_s, slice_s,
+                                   rt_priority)
                 got = rx.wait_for(n, 10.0)
         return stats, {"sent": sent, **stages.stages(), **got}
     ctx = multiprocessing.get_context("spawn")
     parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_receiving_side, args=(channel, stamp, n, child), name="bench-receiving-side")
+    proc = ctx.Process(target=_receiving_side, args=(channel, stamp, n, child, rx_rt_priority),
+                       name="bench-receiving-side")
     proc.start()
     child.close()
     try:
         if not parent.poll(60.0):
             raise SystemExit("receiving side did not start")
         host, port = parent.recv()
-        stats, sent = play(plan, f"socketcand:vsc0,host={host},port={port}", speed, spin_s, slice_s)
+        stats, sent = play(plan, f"socketcand:vsc0,host={host},port={port}", speed, spin_s, slice_s, rt_priority)
         if not parent.poll(70.0):
             raise SystemExit("receiving side did not answer")
         return stats, {"sent": sent, **parent.recv()}
@@ -235,6 +246,11 @@ def _figures(values_ns: np.ndarray, qs: tuple[float, ...]) -> str:
     return "/".join(f"{v:.0f}" for v in np.percentile(values_ns, qs) / 1e3)
 
 
+def _variant(spin_ms: float, slice_us: float, prio: int) -> str:
+    return (f"spin {spin_ms:g} ms, slice " + (f"{slice_us:g} µs" if slice_us else "default")
+            + (f", SCHED_FIFO {prio}" if prio else ""))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
     parser.add_argument("--session", type=Path, help="A recorded session to replay (default: record one)")
@@ -248,11 +264,16 @@ def main() -> None:
     parser.add_argument("--slice-us", type=float, action="append",
                         help="player thread's requested scheduler slice (Linux >= 6.12), repeatable; 0: the "
                              f"scheduler's default (default: {Replayer.SLICE_S * 1e6:g})")
+    parser.add_argument("--rt-priority", type=int, action="append",
+                        help="player thread on SCHED_FIFO at this priority, repeatable; 0: ordinary (default: 0)")
+    parser.add_argument("--rx-rt-priority", type=int, default=0,
+                        help="scand/out: the receiving process's threads on SCHED_FIFO at this priority (0: no)")
     parser.add_argument("--stress", type=int, default=0, help="busy processes running during the runs")
     args = parser.parse_args()
     setups = args.setup or ["virtual/in", "scand/in", "scand/out"]
     spins = args.spin_ms or [Replayer.SPIN_S * 1e3, 0.0]
     slices = args.slice_us or [Replayer.SLICE_S * 1e6]
+    priorities = args.rt_priority or [0]
     ctx = multiprocessing.get_context("spawn")
     burners: list[Any] = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -266,18 +287,19 @@ def main() -> None:
             proc = ctx.Process(target=_burn, daemon=True, name="bench-replay-stress")
             proc.start()
             burners.append(proc)
-        tallies: dict[tuple[str, float, float], Tally] = {}
+        tallies: dict[tuple[str, float, float, int], Tally] = {}
         try:
             k = 0
             for setup in setups:
                 for _ in range(args.repeat):  # the variants interleaved, so a change of load hits them all
-                    for spin_ms, slice_us in itertools.product(spins, slices):
+                    for spin_ms, slice_us, prio in itertools.product(spins, slices, priorities):
                         k += 1
                         load = os.getloadavg()[0]
                         stats, stages = run_once(plan, setup, f"bench-replay-{k}", args.speed, spin_ms / 1e3,
-                                                 slice_us / 1e6 if slice_us else None, args.stamp)
+                                                 slice_us / 1e6 if slice_us else None, prio or None, args.stamp,
+                                                 args.rx_rt_priority)
                         lat = stats.lateness_us
-                        variant = f"spin {spin_ms:g} ms, slice " + (f"{slice_us:g} µs" if slice_us else "default")
+                        variant = _variant(spin_ms, slice_us, prio)
                         print(f"{setup} {variant}, load {load:.1f}: send lateness µs p50/p99/max "
                               f"{lat['p50']:.0f}/{lat['p99']:.0f}/{lat['max']:.0f}, {stats.late_frames} > 1 ms")
                         print(f"    {'stage':<9} {'spacing error µs p50/p99/p99.9/max':>36} {'>1 ms':>6} "
@@ -290,7 +312,7 @@ def main() -> None:
                             after = "" if name == "sent" else _figures(times - stages["sent"], (50, 99, 100))
                             print(f"    {name:<9} {_figures(err, (50, 99, 99.9, 100)):>36} {over:>6} {after:>27}")
                             if name == "recorded":
-                                tally = tallies.setdefault((setup, spin_ms, slice_us), Tally())
+                                tally = tallies.setdefault((setup, spin_ms, slice_us, prio), Tally())
                                 tally.runs += 1
                                 tally.clean += over == 0
                                 tally.over += over
@@ -302,8 +324,8 @@ def main() -> None:
             for proc in burners:
                 proc.join(5.0)
     print("recorded spacing (the acceptance figure), per set-up:")
-    for (setup, spin_ms, slice_us), t in tallies.items():
-        variant = f"spin {spin_ms:g} ms, slice " + (f"{slice_us:g} µs" if slice_us else "default")
+    for (setup, spin_ms, slice_us, prio), t in tallies.items():
+        variant = _variant(spin_ms, slice_us, prio)
         print(f"    {setup} {variant}: {t.clean} of {t.runs} runs with every frame within 1 ms; "
               f"{t.over} frames over 1 ms in all; worst {t.worst_us:.0f} µs; "
               f"load {min(t.loads):.1f}-{max(t.loads):.1f}")

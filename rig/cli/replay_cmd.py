@@ -41,6 +41,11 @@ def replay(
     roles_file: Annotated[
         Path | None, typer.Option("--roles", help="Role map (default: the one attached to the session).")
     ] = None,
+    rt_priority: Annotated[
+        int | None, typer.Option("--rt-priority", help=(
+            "Run the player on the SCHED_FIFO real-time policy at this priority (1-99): it holds the recorded "
+            "spacing within 1 ms on a busy host. Needs root, CAP_SYS_NICE or an rtprio limit (limits.conf)."))
+    ] = None,
 ) -> None:
     """Play the recorded CAN frames of SESSION onto a live bus at their recorded times (HIL: drive a bench ECU
     with a road test). Frames go out byte-exact, counters and checksums as recorded; faults rewrite one
@@ -76,7 +81,8 @@ def replay(
         try:
             result.append(replay_session(
                 session, bus_config, recorded_bus=recorded_bus, ids=ids or (), roles=roles or (), faults=parsed,
-                speed=speed, passes=None if loop else 1, stop=stop, db=db, rolemap=rolemap, on_plan=on_plan))
+                speed=speed, passes=None if loop else 1, stop=stop, db=db, rolemap=rolemap, on_plan=on_plan,
+                rt_priority=rt_priority))
         except BaseException as exc:  # re-raised on the command's thread
             failure.append(exc)
 

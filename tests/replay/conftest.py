@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -50,3 +51,16 @@ def channel(request: pytest.FixtureRequest) -> str:
 
 def session_path(ds: Session) -> Path:
     return Path(ds.path)
+
+
+def fifo_allowed() -> bool:
+    """Whether this process may put a thread on SCHED_FIFO (root, CAP_SYS_NICE or an rtprio limit)."""
+    if not hasattr(os, "SCHED_FIFO"):
+        return False
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    except PermissionError:
+        return False
+    os.sched_setscheduler(0, policy, param)
+    return True

@@ -13,6 +13,8 @@ them: on the receiving side, when the frame reaches it.
 from __future__ import annotations
 
 import multiprocessing
+import os
+import sys
 import threading
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -82,9 +84,18 @@ def _flags(f: CanFrame) -> T.CanFlag:
     return flags
 
 
-def _receiving_side(channel: str, source: str, out: str, count: int, timeout_s: float, conn: Connection) -> None:
-    """The child process of :class:`ReceivingSide`: serve ``vsc0`` over socketcand, record ``count`` frames."""
+def _receiving_side(channel: str, source: str, out: str, count: int, timeout_s: float, conn: Connection,
+                    rt_priority: int | None = None) -> None:
+    """The child process of :class:`ReceivingSide`: serve ``vsc0`` over socketcand, record ``count`` frames.
+
+    ``rt_priority``: every thread of the process on SCHED_FIFO at that priority (threads inherit it) and a
+    0.2 ms interpreter switch interval, so that the server reads each ``< send >`` as it arrives and stamps it
+    alone, as a bench's interface stamps in hardware: a descheduled server reads several sends in one go,
+    and TCP gives them all the latest segment's stamp (``benchmarks/bench_replay.py --rx-rt-priority``)."""
     try:
+        if rt_priority is not None:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt_priority))
+            sys.setswitchinterval(0.0002)
         with SocketcandServer(virtual_channel_opener({"vsc0": channel}), rawmode_settle_s=0.0) as server:
             host, port = server.address
             rx = CanBusConfig(interface="socketcand", channel="vsc0", options={"host": host, "port": port}, name="rx")
@@ -109,12 +120,14 @@ class ReceivingSide:
     returns them as a recording (``out/again``) written with ``source``'s DBC and role map.
     """
 
-    def __init__(self, channel: str, source: Session, out: Path, count: int, timeout_s: float = 60.0) -> None:
+    def __init__(self, channel: str, source: Session, out: Path, count: int, timeout_s: float = 60.0,
+                 rt_priority: int | None = None) -> None:
         ctx = multiprocessing.get_context("spawn")
         self._conn, self._child = ctx.Pipe(duplex=False)
         self._out = out
         self._proc = ctx.Process(target=_receiving_side, name="replay-receiving-side",
-                                 args=(channel, str(source.path), str(out), count, timeout_s, self._child))
+                                 args=(channel, str(source.path), str(out), count, timeout_s, self._child,
+                                       rt_priority))
         self.bus_spec = ""
 
     def _recv(self, timeout_s: float) -> tuple[Any, ...]:

@@ -18,6 +18,7 @@ import pytest
 
 import rig.topics as T  # noqa: N812 - short alias
 from rig.replay import Replayer, ReplayPlan
+from tests.replay.conftest import fifo_allowed
 from vsccore.errors import ConfigError
 
 MS = 1_000_000
@@ -188,7 +189,8 @@ def test_frames_keep_id_length_flags_and_bytes() -> None:
 
 @pytest.mark.parametrize(("kw", "match"), [({"speed": 0.0}, "speed"), ({"speed": float("nan")}, "speed"),
                                            ({"passes": 0}, "passes"), ({"slice_s": 0.0}, "slice_s"),
-                                           ({"slice_s": 0.5}, "slice_s")])
+                                           ({"slice_s": 0.5}, "slice_s"), ({"rt_priority": 0}, "rt-priority"),
+                                           ({"rt_priority": 100}, "rt-priority")])
 def test_bad_options_are_config_errors(kw: dict[str, Any], match: str) -> None:
     clock = FakeClock()
     bus = RecordingBus(clock)
@@ -359,3 +361,45 @@ def test_the_player_thread_asks_for_a_short_time_slice_and_restores_it() -> None
             bus.shutdown()
         assert seen == [expected] * 3, slice_s
         assert _slice_ns() == before
+
+
+@pytest.mark.skipif(not fifo_allowed(), reason="SCHED_FIFO needs root, CAP_SYS_NICE or an rtprio limit")
+def test_rt_priority_plays_on_sched_fifo_and_restores_the_policy() -> None:
+    """``rt_priority``: every frame goes out from a SCHED_FIFO thread at that priority; afterwards the thread is
+    back on its own policy (and without it nothing changes)."""
+    before = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+    seen: list[tuple[int, int]] = []
+
+    class PolicyBus(RecordingBus):
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            seen.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+            super().send(msg, timeout)
+
+    for prio, expected in ((20, (os.SCHED_FIFO, 20)), (None, before)):
+        seen.clear()
+        clock = FakeClock()
+        bus = PolicyBus(clock)
+        try:
+            Replayer(periodic(3), bus, clock, spin_s=0.0, rt_priority=prio).run()
+        finally:
+            bus.shutdown()
+        assert seen == [expected] * 3, prio
+        assert (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority) == before
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_FIFO"), reason="no SCHED_FIFO on this system")
+def test_rt_priority_refused_by_the_kernel_names_the_fix_and_sends_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
+    def refuse(pid: int, policy: int, param: Any) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    clock = FakeClock()
+    bus = RecordingBus(clock)
+    try:
+        with pytest.raises(ConfigError, match=r"--rt-priority 30: the kernel refused the SCHED_FIFO policy "
+                                              r"\(Operation not permitted\); it needs root, the CAP_SYS_NICE "
+                                              r"capability .* or an rtprio limit >= 30"):
+            Replayer(periodic(3), bus, clock, spin_s=0.0, rt_priority=30).run()
+    finally:
+        bus.shutdown()
+    assert bus.sent == []
