@@ -344,47 +344,41 @@ def test_the_player_thread_asks_for_a_short_time_slice_and_restores_it() -> None
     host); afterwards it is what it was; ``slice_s=None`` leaves it alone."""
     before = _slice_ns()
     assert before is not None and before > Replayer.SLICE_S * 1e9
-    seen: list[int | None] = []
+    for slice_s, expected in ((Replayer.SLICE_S, round(Replayer.SLICE_S * 1e9)), (0.0005, 500_000), (None, before)):
+        assert _read_at_each_send(_slice_ns, slice_s=slice_s) == [expected] * 3, slice_s
+        assert _slice_ns() == before
 
-    class SliceBus(RecordingBus):
+
+def _read_at_each_send(read: Any, **kw: Any) -> list[Any]:
+    """Play 3 frames (fake clock, no spin) with the Replayer options ``kw``; ``read()`` taken at each send, on
+    the player's thread."""
+    seen: list[Any] = []
+
+    class ReadingBus(RecordingBus):
         def send(self, msg: can.Message, timeout: float | None = None) -> None:
-            seen.append(_slice_ns())
+            seen.append(read())
             super().send(msg, timeout)
 
-    for slice_s, expected in ((Replayer.SLICE_S, round(Replayer.SLICE_S * 1e9)), (0.0005, 500_000), (None, before)):
-        seen.clear()
-        clock = FakeClock()
-        bus = SliceBus(clock)
-        try:
-            Replayer(periodic(3), bus, clock, spin_s=0.0, slice_s=slice_s).run()
-        finally:
-            bus.shutdown()
-        assert seen == [expected] * 3, slice_s
-        assert _slice_ns() == before
+    clock = FakeClock()
+    bus = ReadingBus(clock)
+    try:
+        Replayer(periodic(3), bus, clock, spin_s=0.0, **kw).run()
+    finally:
+        bus.shutdown()
+    return seen
 
 
 @pytest.mark.skipif(not fifo_allowed(), reason="SCHED_FIFO needs root, CAP_SYS_NICE or an rtprio limit")
 def test_rt_priority_plays_on_sched_fifo_and_restores_the_policy() -> None:
     """``rt_priority``: every frame goes out from a SCHED_FIFO thread at that priority; afterwards the thread is
     back on its own policy (and without it nothing changes)."""
-    before = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
-    seen: list[tuple[int, int]] = []
+    def policy() -> tuple[int, int]:
+        return os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
 
-    class PolicyBus(RecordingBus):
-        def send(self, msg: can.Message, timeout: float | None = None) -> None:
-            seen.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
-            super().send(msg, timeout)
-
+    before = policy()
     for prio, expected in ((20, (os.SCHED_FIFO, 20)), (None, before)):
-        seen.clear()
-        clock = FakeClock()
-        bus = PolicyBus(clock)
-        try:
-            Replayer(periodic(3), bus, clock, spin_s=0.0, rt_priority=prio).run()
-        finally:
-            bus.shutdown()
-        assert seen == [expected] * 3, prio
-        assert (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority) == before
+        assert _read_at_each_send(policy, rt_priority=prio) == [expected] * 3, prio
+        assert policy() == before
 
 
 @pytest.mark.skipif(not hasattr(os, "SCHED_FIFO"), reason="no SCHED_FIFO on this system")
