@@ -59,7 +59,7 @@ import numpy as np
 
 from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusSession, CanFrame, open_bus
 from rig.dataset import load_session
-from rig.replay import Replayer, ReplayPlan, ReplayStats, build_plan, parse_bus_spec
+from rig.replay import Replayer, ReplayPlan, ReplayStats, build_plan, parse_bus_spec, realtime_priority
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from vsccore.clock import ScaledClock, SystemClock
 
@@ -159,10 +159,10 @@ def _receiving_side(channel: str, stamp: str, count: int, conn: Connection, rx_r
     ``rx_rt_priority``: every thread of it on SCHED_FIFO at that priority (threads inherit the policy) and a
     0.2 ms interpreter switch interval, as a bench's receiving side stamps in hardware, unaffected by load."""
     if rx_rt_priority:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rx_rt_priority))
         sys.setswitchinterval(0.0002)
     stages = ServerStages(channel, stamp)
-    with SocketcandServer(stages.opener(), rawmode_settle_s=0.0) as server:
+    with realtime_priority(rx_rt_priority or None), SocketcandServer(stages.opener(),
+                                                                     rawmode_settle_s=0.0) as server:
         host, port = server.address
         with Receiver(_socketcand_rx(host, port)) as rx:
             conn.send((host, port))

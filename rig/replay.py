@@ -78,6 +78,7 @@ __all__ = [
     "parse_bus_spec",
     "parse_fault",
     "parse_id",
+    "realtime_priority",
     "replay_session",
 ]
 
@@ -760,7 +761,7 @@ class Replayer:
     Real-time priority. ``rt_priority`` (1-99; ``rig replay --rt-priority``) puts the player thread on the
     kernel's ``SCHED_FIFO`` policy for :meth:`run`: it then takes a CPU from any ordinary process the moment
     its sleep ends, whatever the load (measured on a 2-core VM with 6 busy processes: send lateness p99
-    16-32 µs against 4.5-5.4 ms ordinary, and 2-5 frames over 1 ms a run against 310-455, those left where
+    13-25 µs against 4.5-5.4 ms ordinary, and 0-4 frames over 1 ms a run against 310-455, those left where
     the hypervisor took the virtual CPU; ``benchmarks/bench_replay.py --rt-priority 50``). It needs root,
     ``CAP_SYS_NICE`` or an ``rtprio`` limit of at least that priority (``/etc/security/limits.conf``); without
     one, :meth:`run` refuses with that fix rather than play with ordinary timing. The kernel's real-time
@@ -850,7 +851,7 @@ class Replayer:
             gc.disable()
         try:
             # real-time first: the fair scheduler's slice applies to an ordinary thread only
-            with _timer_slack(self.TIMER_SLACK_NS), _realtime(self.rt_priority), _fair_slice(self.slice_ns):
+            with _timer_slack(self.TIMER_SLACK_NS), realtime_priority(self.rt_priority), _fair_slice(self.slice_ns):
                 return self._run()
         finally:
             if gc_was_enabled:
@@ -999,15 +1000,17 @@ def _check_rt_priority(priority: int | None) -> int | None:
 
 
 @contextlib.contextmanager
-def _realtime(priority: int | None) -> Iterator[None]:
+def realtime_priority(priority: int | None) -> Iterator[None]:
     """The calling thread on ``SCHED_FIFO`` at ``priority`` for the block, then back on its own policy
-    (None: nothing changes). A refusal by the kernel is a :class:`ConfigError` naming the fix."""
-    if priority is None:
+    (None: nothing changes). Threads it starts inside the block inherit the policy. A priority out of range,
+    a system without the policy or a refusal by the kernel is a :class:`ConfigError` naming the fix."""
+    checked = _check_rt_priority(priority)
+    if checked is None:
         yield
         return
     old_policy, old_param = os.sched_getscheduler(0), os.sched_getparam(0)
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(checked))
     except PermissionError as exc:
         limit = _rtprio_limit()
         raise ConfigError(

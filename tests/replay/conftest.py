@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import itertools
-import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -13,9 +12,11 @@ import pytest
 from rig.config import load_session as load_config
 from rig.dataset import Session, load_session
 from rig.demo import demo_config_path
+from rig.replay import realtime_priority
 from rig.simworld import record_simulated
 from sim_devices.vehicle.scenarios import make_scenario
 from tests.session.recording import FAST_RTK
+from vsccore.errors import ConfigError
 
 _counter = itertools.count()
 
@@ -55,12 +56,8 @@ def session_path(ds: Session) -> Path:
 
 def fifo_allowed() -> bool:
     """Whether this process may put a thread on SCHED_FIFO (root, CAP_SYS_NICE or an rtprio limit)."""
-    if not hasattr(os, "SCHED_FIFO"):
-        return False
-    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-    except PermissionError:
+        with realtime_priority(1):
+            return True
+    except ConfigError:
         return False
-    os.sched_setscheduler(0, policy, param)
-    return True

@@ -13,7 +13,6 @@ them: on the receiving side, when the frame reaches it.
 from __future__ import annotations
 
 import multiprocessing
-import os
 import sys
 import threading
 from multiprocessing.connection import Connection
@@ -24,6 +23,7 @@ import rig.topics as T  # noqa: N812 - short alias
 from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusSession, CanFrame, CanFrameFlag
 from rig.dataset import Session, load_session
 from rig.recorder import Attachment, Recorder, RecorderOptions, session_metadata
+from rig.replay import realtime_priority
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from vsccore.clock import SystemClock
 
@@ -94,9 +94,9 @@ def _receiving_side(channel: str, source: str, out: str, count: int, timeout_s: 
     and TCP gives them all the latest segment's stamp (``benchmarks/bench_replay.py --rx-rt-priority``)."""
     try:
         if rt_priority is not None:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt_priority))
             sys.setswitchinterval(0.0002)
-        with SocketcandServer(virtual_channel_opener({"vsc0": channel}), rawmode_settle_s=0.0) as server:
+        opener = virtual_channel_opener({"vsc0": channel})
+        with realtime_priority(rt_priority), SocketcandServer(opener, rawmode_settle_s=0.0) as server:
             host, port = server.address
             rx = CanBusConfig(interface="socketcand", channel="vsc0", options={"host": host, "port": port}, name="rx")
             with ReceivingRecorder(rx) as receiver:
