@@ -43,8 +43,9 @@ def replay(
     ] = None,
     rt_priority: Annotated[
         int | None, typer.Option("--rt-priority", help=(
-            "Run the player on the SCHED_FIFO real-time policy at this priority (1-99): it holds the recorded "
-            "spacing within 1 ms on a busy host. Needs root, CAP_SYS_NICE or an rtprio limit (limits.conf)."))
+            "Run the player on the SCHED_FIFO real-time policy at this priority (1-99), so that a busy host does "
+            "not delay its frames (a virtual machine's hypervisor still can). Needs root, CAP_SYS_NICE or an "
+            "rtprio limit (limits.conf)."))
     ] = None,
 ) -> None:
     """Play the recorded CAN frames of SESSION onto a live bus at their recorded times (HIL: drive a bench ECU

@@ -10,7 +10,7 @@ spacing is measured on the stamps the receiving recorder records (``device_ts_ns
 kernel arrival stamp of each ``< send >``), not its own receive times. Where the process may, the player runs
 on SCHED_FIFO (``rig replay --rt-priority``) and so does the receiving process (which stands in for an
 interface stamping in hardware). Measured 2026-12-03 on the rig's 2-core VM, 10 idle runs of the two
-cross-process tests: 6 of 10 with every frame within 1 ms, the others 1-3 frames over (at most 2.6 ms), each
+cross-process tests: 6 of 10 with every frame within 1 ms, the others 2-8 frames over (at most 2.6 ms), each
 where the player itself sent late (1.1-2.2 ms) though on SCHED_FIFO: the hypervisor took the virtual CPU
 (/proc/stat counts steal time on this VM even when idle). Ordinary scheduling before: 7 of 10 idle; under 6
 busy processes 0 of 5 (4661-5324 frames over 1 ms), with SCHED_FIFO on both sides 1 of 4 (20 frames in all).
