@@ -62,6 +62,7 @@ from drivers.novatel import (
     xor_checksum,
 )
 from drivers.novatel.crc import crc24q, novatel_crc32
+from drivers.novatel.framer import FEED_IMPLEMENTATION, _PyFeedGate
 
 GOAL_RATIO = 3.0
 
@@ -169,9 +170,13 @@ def _time(framer: Framer | _NoFramer, chunks: list[bytes]) -> tuple[float, list[
     return time.process_time() - t0, frames
 
 
+#: The framer measured: the install's (``--feed installed``) or the one with the pure-Python feed.
+FRAMER: type[Framer] = Framer
+
+
 def run(chunks: list[bytes]) -> tuple[float, list[tuple[object, bytes]], dict[str, object]]:
     """CPU time of feeding ``chunks`` (already cut, as a port's reads deliver them) and finishing."""
-    framer = Framer()
+    framer = FRAMER()
     elapsed, frames = _time(framer, chunks)
     return elapsed, [(f.kind, f.raw) for f in frames if isinstance(f, Frame)], framer.stats.to_dict()
 
@@ -227,7 +232,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--mb", type=float, default=1.0, help="stream size in MB (default 1)")
     parser.add_argument("--rounds", type=int, default=5, help="rounds; medians are shown (default 5)")
+    parser.add_argument("--feed", choices=("installed", "python"), default="installed",
+                        help="the install's Framer.feed (C where built) or its pure-Python twin")
     args = parser.parse_args()
+    global FRAMER
+    if args.feed == "python":
+        FRAMER = type("PyFeedFramer", (Framer,), {"feed": _PyFeedGate.feed})
+    print(f"Framer.feed: {FEED_IMPLEMENTATION if args.feed == 'installed' else 'python'}")
     size = int(args.mb * 1_000_000)
     verdicts = []
     for name, data in (("receiver", receiver_stream(size)), ("worst", worst_stream(size))):

@@ -69,7 +69,7 @@ import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import pynmea2
 from pyrtcm import RTCMReader
@@ -279,7 +279,57 @@ def _rtcm_number_plausible(number: int) -> bool:
     return 1001 <= number <= 1399 or 4001 <= number <= 4095
 
 
-class Framer:
+class _PyFeedGate:
+    """The pure-Python twin of :class:`drivers.novatel._feed.FeedGate` (the C entry of :meth:`Framer.feed`),
+    used when that extension is not built: the same decision, per chunk, on the same attributes."""
+
+    _acc: bytearray
+    _quiet_len: int
+    _wake_len: int
+    _wake_set: frozenset[bytes] | None
+    _wake_search: _WakeSearch
+    _quiet: frozenset[bytes]
+
+    def _look(self) -> tuple[Frame, ...]:
+        raise NotImplementedError
+
+    def feed(self, data: bytes | bytearray | memoryview) -> tuple[Frame, ...]:
+        """Add bytes; return the frames completed by them (in stream order; ``()`` for none)."""
+        acc = self._acc
+        acc += data
+        n = len(acc)
+        if n < self._quiet_len:  # a frame's known rest: no byte can end the wait before its end
+            return _NO_FRAMES
+        if n < self._wake_len:
+            # No frame can complete, or be rejected, before the wake condition: keep the bytes only.
+            if self._wake_set is None:
+                return _NO_FRAMES
+            try:
+                if data in self._quiet:  # a serial port's typical read, one byte: a hash lookup
+                    return _NO_FRAMES
+            except (TypeError, ValueError):  # a bytearray or writable memoryview: unhashable
+                pass
+            if self._wake_search(data) is None:  # a longer chunk (never in the set of 1-byte ones)
+                return _NO_FRAMES
+        return self._look()
+
+
+#: Which :meth:`Framer.feed` this install runs: ``"c"`` (drivers/novatel/_feed.c, built by setup.py where a
+#: C compiler is found) or ``"python"`` (:class:`_PyFeedGate`). The frames and counts are the same.
+FEED_IMPLEMENTATION: str
+if TYPE_CHECKING:
+    _FeedGate = _PyFeedGate
+else:
+    try:
+        from drivers.novatel._feed import FeedGate as _FeedGate
+    except ImportError:  # not built: the pure-Python twin
+        _FeedGate = _PyFeedGate
+        FEED_IMPLEMENTATION = "python"
+    else:
+        FEED_IMPLEMENTATION = "c"
+
+
+class Framer(_FeedGate):
     """Incremental multi-protocol framer for NovAtel receiver ports.
 
     Args:
@@ -342,26 +392,6 @@ class Framer:
         stats = self._stats
         stats.bytes_in = self._base + len(self._acc)  # kept here, not per feed: feed(1 byte) stays cheap
         return stats
-
-    def feed(self, data: bytes | bytearray | memoryview) -> tuple[Frame, ...]:
-        """Add bytes; return the frames completed by them (in stream order; ``()`` for none)."""
-        acc = self._acc
-        acc += data
-        n = len(acc)
-        if n < self._quiet_len:  # a frame's known rest: no byte can end the wait before its end
-            return _NO_FRAMES
-        if n < self._wake_len:
-            # No frame can complete, or be rejected, before the wake condition: keep the bytes only.
-            if self._wake_set is None:
-                return _NO_FRAMES
-            try:
-                if data in self._quiet:  # a serial port's typical read, one byte: a hash lookup
-                    return _NO_FRAMES
-            except (TypeError, ValueError):  # a bytearray or writable memoryview: unhashable
-                pass
-            if self._wake_search(data) is None:  # a longer chunk (never in the set of 1-byte ones)
-                return _NO_FRAMES
-        return self._look()
 
     def _look(self) -> tuple[Frame, ...]:
         """Look at the bytes held now that a fed chunk could change a verdict."""

@@ -1,12 +1,19 @@
 """Framer on mixed and corrupt streams: any chunking gives the same frames; garbage, truncated and
 corrupted frames are rejected and counted by kind, never accepted; NMEA checked with pynmea2 and
-RTCM3 with pyrtcm; random bytes never raise."""
+RTCM3 with pyrtcm; random bytes never raise.
+
+Every test of this module runs twice: with the install's ``Framer.feed`` (the C entry,
+drivers/novatel/_feed.c, where it is built) and with its pure-Python twin (``framer._PyFeedGate.feed``,
+what an install without a C compiler runs), so both give the same frames and counts."""
 
 from __future__ import annotations
 
 import io
+import shutil
 import struct
+import sysconfig
 import zlib
+from collections.abc import Iterator
 from typing import Any
 
 import pynmea2
@@ -35,8 +42,51 @@ from drivers.novatel import (
     make_header,
     xor_checksum,
 )
-from drivers.novatel.framer import LOG_KINDS, FramerStats
+from drivers.novatel import framer as framer_module
+from drivers.novatel.framer import FEED_IMPLEMENTATION, LOG_KINDS, FramerStats, _PyFeedGate
 from tests.novatel.gen import mixed_stream, nmea_gga, rtcm_1005, sample_bestpos
+
+#: The framer with the pure-Python feed (the twin of the C entry), whatever this install runs.
+PyFeedFramer = type("PyFeedFramer", (Framer,), {"feed": _PyFeedGate.feed})
+
+
+@pytest.fixture(scope="module", autouse=True, params=["installed", "python"])
+def feed_implementation(request: pytest.FixtureRequest) -> Iterator[str]:
+    """This module's tests, once with the installed ``Framer`` and once with the pure-Python feed (the
+    name ``Framer`` in this module is rebound; module scope: hypothesis allows no function-scoped fixture)."""
+    global Framer
+    installed = Framer
+    if request.param == "python":
+        Framer = PyFeedFramer  # type: ignore[misc]
+    try:
+        yield request.param
+    finally:
+        Framer = installed  # type: ignore[misc]
+
+
+def test_the_c_feed_is_built_where_a_c_compiler_is() -> None:
+    """setup.py builds drivers/novatel/_feed.c as an optional extension; where the machine has the C
+    compiler Python was built with, a silent fall-back to the slower pure-Python feed is a broken build."""
+    compiler = (sysconfig.get_config_var("CC") or "cc").split()[0]
+    if shutil.which(compiler) is None:
+        pytest.skip(f"no C compiler ({compiler}) on this machine: the pure-Python feed is expected")
+    assert FEED_IMPLEMENTATION == "c", "drivers.novatel._feed did not build or import (pip install -e . -v shows why)"
+    assert framer_module.Framer.feed is not _PyFeedGate.feed
+
+
+def test_the_c_feed_rejects_what_bytearray_concatenation_rejects() -> None:
+    """A chunk that is not bytes-like is a TypeError naming its type (as ``bytearray += x`` says), and a
+    framer whose state was never set up says which attribute is missing, in both implementations."""
+    framer = Framer()
+    with pytest.raises(TypeError, match="str"):
+        framer.feed("#BESTPOSA")  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="int"):
+        framer.feed(5)  # type: ignore[arg-type]
+    assert framer.pending_bytes == 0
+    bare = Framer.__new__(Framer)
+    with pytest.raises(AttributeError, match="_acc"):
+        bare.feed(b"x")
+
 
 PROPS = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
