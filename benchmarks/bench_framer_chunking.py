@@ -26,13 +26,17 @@ one call costs less than these floors' 3x (the ``worst`` stream: most of its byt
 by one C-level search or CRC in one call), no feed written in Python meets the goal on it; the
 floors say by how much.
 
-Measured on a shared 2-CPU machine under load (load average 9-40), four runs of 7-11 rounds:
-``receiver`` 1-byte feed medians 3.09-3.40x one call (per-round 2.4-5.3x), with the no-op floor's
-medians at 0.74-0.84x and the append-only floor's at 1.26-1.40x: the floors plus the one call's own
-work (1x) leave about 0.5-0.7x for everything a framer does per byte and per frame, which is less
-than this framer takes (a length comparison per byte, two looks per binary log, a few per text
-frame), so the goal is not met on that machine. ``worst``: 1-byte medians 9.7-11.4x, no-op floor
-2.5-3.2x. Run::
+``Framer.feed``'s per-chunk entry is C (drivers/novatel/_feed.c) where the extension is built; ``--feed
+python`` measures its pure-Python twin (what an install without a C compiler runs) on the same streams.
+
+Measured on an idle 2-CPU machine (2026-12-03, 9 rounds): ``receiver`` 1-byte feed median **2.14x** one
+call with the C entry (per-round 1.59-2.25x; goal met), 3.67x with the Python twin (the no-op floor
+0.85x, the append-only floor 1.44x: a Python feed cannot get far under 3x). Under the load of a running
+test suite: 2.04x (C). ``worst``: 5.0x with the C entry, 10.3x with the Python twin (its one call passes
+over most bytes in one C-level search or CRC; its 1-byte feed wakes a Python look at each of its 400-line
+abbreviated logs' line ends): linear, not within 3x.
+
+Run::
 
     python benchmarks/bench_framer_chunking.py [--mb 1] [--rounds 5]
 """

@@ -52,13 +52,15 @@ them.
 A 1-byte feed that changes no verdict appends the byte, compares the buffer's length with the end of
 the frame in progress (the rest of a binary log or RTCM3 frame) or, when a byte may end the wait (a
 text frame's ``*`` or CRC digits, the bytes after a frame, garbage), with the wait's length and makes
-one set lookup, and returns the shared empty tuple. Most of what a 1 MB one-byte-at-a-time feed
-costs on a receiver's stream is the floor of any feed written in Python: the call itself (a feed
-that does nothing: medians 0.74-0.84x one 1 MB call), keeping the byte (a feed that only appends it:
-1.26-1.40x) and the one call's own work (1x); measured with ``benchmarks/bench_framer_chunking.py``
-on a shared, loaded machine this framer takes medians of 3.1-3.4x, so the 3x goal is not met there.
-Streams that one call passes over at C speed (long runs that one search or CRC skips) cost more in
-ratio: there the no-op floor alone is 2.5-3.2x.
+one set lookup, and returns the shared empty tuple. That entry is written in C
+(``drivers/novatel/_feed.c``, the base class of :class:`Framer`, built by ``setup.py`` where a C compiler
+is found; :data:`FEED_IMPLEMENTATION` says which one runs): in Python it costs a Python call and a few
+attribute loads per read, which was most of a 1-byte-at-a-time feed's cost. Everything after the entry
+(a look at the held bytes) is Python, the same for both. ``benchmarks/bench_framer_chunking.py``, 1 MB of a
+receiver's stream fed one byte at a time, idle 2-CPU machine, medians of 9 rounds: 2.14x one 1 MB call
+with the C entry (goal 3x), 3.67x with the pure-Python twin. Streams that one call passes over at C speed
+cost more in ratio (the benchmark's ``worst`` stream, 5.0x with the C entry: its 400-line abbreviated
+logs wake a Python look at each line end), still linear in the bytes.
 """
 
 from __future__ import annotations
