@@ -112,12 +112,23 @@ class ObservationGenerator:
         self._ambiguity: dict[tuple[GnssSystem, int, Band], int] = {}
         self._lock_start_ns: dict[tuple[GnssSystem, int, Band], int] = {}
         self._last_seen_ns: dict[tuple[GnssSystem, int, Band], int] = {}
+        self._geometry: tuple[tuple[float, float, float, int], list[SatObservation]] | None = None
 
     def geometry(self, antenna: AntennaState, t_gps_ns: int) -> list[SatObservation]:
-        """Satellites above the mask seen from ``antenna`` at ``t_gps_ns``."""
-        return self.constellation.visible(
+        """Satellites above the mask seen from ``antenna`` at ``t_gps_ns``.
+
+        The last answer is kept: a rover's logs of one epoch (RANGECMP, and the GPS and GLONASS
+        ephemerides it checks for a change at every epoch) ask for the same geometry, which costs a
+        GLONASS orbit integration each time (a pure function of its arguments: the same list)."""
+        key = (antenna.lat_deg, antenna.lon_deg, antenna.height_m, t_gps_ns)
+        cached = self._geometry
+        if cached is not None and cached[0] == key:
+            return list(cached[1])
+        visible = self.constellation.visible(
             antenna.lat_deg, antenna.lon_deg, antenna.height_m, t_gps_ns / NS_PER_S, self.mask_deg
         )
+        self._geometry = (key, visible)
+        return list(visible)
 
     def ranges(self, antenna: AntennaState, t_gps_ns: int, sats: list[Satellite]) -> list[float]:
         """Geometric ranges (m) with light time and the Earth-rotation term, as RTKLIB models them."""

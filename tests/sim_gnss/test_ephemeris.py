@@ -192,3 +192,22 @@ def test_rover_sends_gpsephemb_on_change(truth: GroundTruth, timebase: SimTimeBa
             assert e == gps_ephemeris(rover.constellation, Satellite(GnssSystem.GPS, e.prn), t_ns)
     finally:
         rover.stop()
+
+
+def test_geometry_asked_again_is_the_same_and_follows_a_new_time_or_position() -> None:
+    """ObservationGenerator.geometry keeps its last answer (a rover's logs of one epoch ask for the same
+    geometry): asked again it is equal, and a new time or antenna position is computed afresh, as a
+    generator that never answered before computes it."""
+    const = Constellation()
+    gen = ObservationGenerator(const, seed=3)
+    a = AntennaState(48.7758, 9.1829, 347.9, 0.0, 0.0, 0.0)
+    b = AntennaState(48.7758, 9.1829 + 40.0, 347.9, 0.0, 0.0, 0.0)  # another sky
+    later = START_NS + 3_600 * 1_000_000_000
+    first = gen.geometry(a, START_NS)
+    first.clear()  # the caller owns its list: the kept answer is not the one handed out
+    again = gen.geometry(a, START_NS)
+    assert again and again == ObservationGenerator(const).geometry(a, START_NS)
+    for ant, t in ((a, later), (b, START_NS), (a, START_NS)):
+        assert gen.geometry(ant, t) == ObservationGenerator(const).geometry(ant, t), (ant, t)
+    assert gen.geometry(a, later) != gen.geometry(a, START_NS)
+    assert gen.geometry(b, START_NS) != gen.geometry(a, START_NS)
