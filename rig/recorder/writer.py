@@ -40,6 +40,8 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, TYPE_CHECKING, Any
 
+from mcap._chunk_builder import ChunkBuilder
+from mcap.records import Channel, Message, Schema
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType
 from mcap.writer import Writer as McapWriter
 
@@ -692,6 +694,7 @@ class Recorder:
             compression=self._opts.compression.mcap,
             index_types=IndexType.ALL,
         )
+        _self_describing_chunks(writer)
         self._epoch += 1
         part = _Part(index=index, path=path, stream=stream, writer=writer, started_ns=now)
         self._part = part
@@ -905,6 +908,67 @@ def check_free_space(
             "minimum (output.min_free_disk_mb); not starting the recording"
         )
     return free
+
+
+class _SelfDescribingChunkBuilder(ChunkBuilder):
+    """A chunk builder that puts the Schema and Channel records of every channel a chunk holds messages
+    of into that chunk, before its first message there.
+
+    mcap's writer puts a Schema or Channel record into the chunk that is open when the channel is
+    registered, and only there (and in the summary, written at the end). A part cut short (kill -9,
+    power loss: no summary) whose chunk with a Channel record is damaged could then not say whose every
+    later message on that channel is: they were lost, though their own chunks were intact. With each
+    chunk describing its own channels, every intact chunk can be read on its own. The MCAP
+    specification allows a Schema or Channel record to appear again (with the same content); mcap's
+    reader and the recorder's scanner (:mod:`rig.recorder.reader`) take the repeats as they are.
+    """
+
+    def __init__(self, schemas: Mapping[int, Schema], channels: Mapping[int, Channel]) -> None:
+        super().__init__()
+        self._schemas = schemas
+        self._channels = channels
+        self._schemas_here: set[int] = set()
+
+    def add_schema(self, schema: Schema) -> None:
+        self._schemas_here.add(schema.id)
+        super().add_schema(schema)
+
+    def add_message(self, message: Message) -> None:
+        cid = message.channel_id
+        if cid not in self.message_indices:  # the channel's first message in this chunk
+            channel = self._channels[cid]
+            sid = channel.schema_id
+            if sid and sid not in self._schemas_here:
+                self.add_schema(self._schemas[sid])
+            self.add_channel(channel)
+        super().add_message(message)
+
+    def reset(self) -> None:
+        super().reset()
+        self._schemas_here.clear()
+
+
+def _self_describing_chunks(writer: McapWriter) -> None:
+    """Give ``writer`` a :class:`_SelfDescribingChunkBuilder` (before it has written anything).
+
+    mcap's ``Writer`` has no public hook for its chunk builder: its name-mangled attributes are used,
+    checked here, so a change in mcap fails the first recording loudly instead of silently writing
+    chunks that depend on each other (``tests/recorder/test_damage.py`` holds the behaviour)."""
+    try:
+        schemas = writer._Writer__schemas  # type: ignore[attr-defined]
+        channels = writer._Writer__channels  # type: ignore[attr-defined]
+        builder = writer._Writer__chunk_builder  # type: ignore[attr-defined]
+    except AttributeError as exc:
+        raise RigError(f"mcap {_mcap_version()}: its Writer no longer has the chunk builder the recorder "
+                            f"replaces ({exc}); pin mcap to a version this recorder supports") from exc
+    if builder is not None:  # None: chunking off (chunk_size 0 is refused by RecorderOptions)
+        writer._Writer__chunk_builder = _SelfDescribingChunkBuilder(schemas, channels)  # type: ignore[attr-defined]
+
+
+def _mcap_version() -> str:
+    from importlib.metadata import version
+
+    return version("mcap")
 
 
 def _flush_writer(writer: McapWriter) -> None:
