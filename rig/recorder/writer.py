@@ -693,6 +693,7 @@ class Recorder:
             chunk_size=self._opts.chunk_size,
             compression=self._opts.compression.mcap,
             index_types=IndexType.ALL,
+            enable_data_crcs=True,  # DataEnd's CRC of the data section: damage no chunk CRC can see
         )
         _self_describing_chunks(writer)
         self._epoch += 1

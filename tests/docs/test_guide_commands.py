@@ -41,7 +41,11 @@ from vsccore.clock import ScaledClock
 REPO = Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"
 GUIDE_PAGES = sorted(p for p in DOCS.rglob("*.md"))
-COMMAND_TIMEOUT_S = 600.0
+COMMAND_TIMEOUT_S = 1500.0
+"""A hang guard per command, not a speed requirement. The session block records the demo drive (164 s of
+simulated time) at --speed 2 on a governed clock, which slows down on a busy host instead of degrading the
+figures: 221-318 s idle and 440-581 s with 6 busy processes on 2 cores, and once over 600 s (the old guard,
+which then failed the guide's whole module). The module's own pytest timeout (3000 s) stays above it."""
 
 _MARKER = re.compile(r"<!--\s*(?P<body>.*?)\s*-->\s*\n(?:\s*\n)*```(?P<lang>\w*)[^\n]*\n(?P<code>.*?)^```",
                      re.DOTALL | re.MULTILINE)
