@@ -422,6 +422,12 @@ class Recorder:
                     self._error = self._error or err
                     log.error("%s", err)
             self._remove_reserve()
+            if self._thread is not None and not self._thread.is_alive():
+                # Every message a source accepted was handed to the MCAP writer or is lost in a queue. Counted
+                # from the sources' own tallies here, not by the writer's last look at the queues: a producer
+                # that passed the `accepting` check just before the writer failed (or stopped) appends after
+                # that look, and its message was neither written nor counted (off by one under load).
+                self._lost_in_queues = sum(max(0, s._accepted - s._written) for s in self._hub.sources)
             self._summary = RecordingSummary(
                 parts=tuple(self._parts),
                 messages=self._messages - self._lost_in_write,
