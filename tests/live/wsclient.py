@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import struct
 import threading
 import time
@@ -40,6 +41,8 @@ async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_
                    headers: dict[str, str] | None = None) -> Received:
     out = Received()
     subs: dict[int, str] = {}
+    subscribed: dict[int, int] = {}  # channel id -> subscription id
+    retries = 0
     deadline = time.monotonic() + timeout_s
     async with connect(url, subprotocols=[Subprotocol(p) for p in SUBPROTOCOLS], max_size=None,
                        additional_headers=headers) as ws:
@@ -63,13 +66,26 @@ async def _collect(url: str, topics: list[str], counts: dict[str, int], timeout_
                     out.server_info = msg
                 elif msg["op"] == "status":
                     out.statuses.append(msg)
+                    # foxglove-sdk 0.30 can refuse a subscription to a channel it has just advertised ("Unknown
+                    # channel ID: N"; seen once in CI, 2026-12-03, through the token gate): it advertises before
+                    # the channel takes subscriptions. Ask again for a channel still advertised, a few times.
+                    refused = re.search(r"[Uu]nknown channel(?: ID)?:? *(\d+)", str(msg.get("message", "")))
+                    if refused and retries < 20:
+                        cid = int(refused.group(1))
+                        sid = subscribed.get(cid)
+                        if sid is not None and any(ch["id"] == cid for ch in out.advertised.values()):
+                            retries += 1
+                            await asyncio.sleep(0.05)
+                            await ws.send(json.dumps({"op": "subscribe",
+                                                      "subscriptions": [{"id": sid, "channelId": cid}]}))
                 elif msg["op"] == "advertise":
                     new = []
                     for ch in msg["channels"]:
                         out.advertised[ch["topic"]] = ch
-                        if ch["topic"] in topics and ch["id"] not in subs.values():
+                        if ch["topic"] in topics and ch["id"] not in subscribed:
                             sid = len(subs) + 1
                             subs[sid] = ch["topic"]
+                            subscribed[ch["id"]] = sid
                             new.append({"id": sid, "channelId": ch["id"]})
                     if new:
                         await ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
