@@ -291,9 +291,8 @@ class _PyFeedGate:
     _wake_set: frozenset[bytes] | None
     _wake_search: _WakeSearch
     _quiet: frozenset[bytes]
-
-    def _look(self) -> tuple[Frame, ...]:
-        raise NotImplementedError
+    _look: Callable[[], tuple[Frame, ...]]
+    """Framer's look at the held bytes (called when a fed chunk may change a verdict)."""
 
     def feed(self, data: bytes | bytearray | memoryview) -> tuple[Frame, ...]:
         """Add bytes; return the frames completed by them (in stream order; ``()`` for none)."""
