@@ -22,7 +22,7 @@ from rig.cli.main import app
 from rig.dataset import load_session
 from rig.inspect import read_session_info
 from rig.recorder import ProblemKind, Recorder, finalize_in_place, recover, scan_part
-from rig.recorder.reader import _MSG, _REC, DamageKind, PartScan, decompress_chunk
+from rig.recorder.reader import _MSG, _REC, ChunkInfo, DamageKind, PartScan, decompress_chunk
 from tests.recorder.helpers import T0, limited_opener, options, read_with_mcap
 from vsccore.errors import DiskFullError
 
@@ -54,22 +54,35 @@ class Recorded:
         return out
 
 
+def compressed_records(data: bytes, c: ChunkInfo) -> tuple[int, int]:
+    """Where chunk ``c``'s (compressed) records lie in ``data``: [start, end), parsed from the chunk header."""
+    body = c.offset + 9
+    clen = int.from_bytes(data[body + 28 : body + 32], "little")  # length of the compression name
+    return body + 40 + clen, c.offset + c.length
+
+
+def chunk_records(data: bytes, c: ChunkInfo) -> list[tuple[int, bytes]]:
+    """Chunk ``c``'s records as (opcode, body), parsed independently of the scanner under test."""
+    start, end = compressed_records(data, c)
+    records = decompress_chunk(c.compression, data[start:end], c.uncompressed_size, "")
+    out = []
+    q = 0
+    while q < len(records):
+        op, ln = _REC.unpack_from(records, q)
+        out.append((op, records[q + 9 : q + 9 + ln]))
+        q += 9 + ln
+    return out
+
+
 def chunk_messages(data: bytes, scan: PartScan) -> list[set[tuple[str, int]]]:
-    """Each chunk's messages, parsed independently of the scanner under test."""
+    """Each chunk's messages (topic, sequence)."""
     out = []
     for c in scan.chunks:
-        body = c.offset + 9
-        clen = int.from_bytes(data[body + 28 : body + 32], "little")
-        rstart = body + 40 + clen
-        records = decompress_chunk(c.compression, data[rstart : c.offset + c.length], c.uncompressed_size, "")
         msgs = set()
-        q = 0
-        while q < len(records):
-            op, ln = _REC.unpack_from(records, q)
+        for op, body in chunk_records(data, c):
             if op == 0x05:
-                cid, seq, _lt, _pt = _MSG.unpack_from(records, q + 9)
+                cid, seq, _lt, _pt = _MSG.unpack_from(body, 0)
                 msgs.add((scan.channels[cid].topic, seq))
-            q += 9 + ln
         out.append(msgs)
     return out
 
@@ -190,21 +203,14 @@ def test_truncation_after_damage(recorded: Recorded, tmp_path: Path) -> None:
 
 
 def chunk_channel_topics(data: bytes, scan: PartScan) -> list[set[str]]:
-    """The topics of the Channel records in each chunk, parsed independently of the scanner under test."""
+    """The topics of the Channel records in each chunk."""
     out = []
     for c in scan.chunks:
-        body = c.offset + 9
-        clen = int.from_bytes(data[body + 28 : body + 32], "little")
-        rstart = body + 40 + clen
-        records = decompress_chunk(c.compression, data[rstart : c.offset + c.length], c.uncompressed_size, "")
         topics = set()
-        q = 0
-        while q < len(records):
-            op, ln = _REC.unpack_from(records, q)
+        for op, body in chunk_records(data, c):
             if op == 0x04:  # Channel: id u16, schema id u16, topic (u32 length + bytes), ...
-                tlen = int.from_bytes(records[q + 13 : q + 17], "little")
-                topics.add(records[q + 17 : q + 17 + tlen].decode())
-            q += 9 + ln
+                tlen = int.from_bytes(body[4:8], "little")
+                topics.add(body[8 : 8 + tlen].decode())
         out.append(topics)
     return out
 
@@ -256,18 +262,15 @@ def test_a_flip_that_decodes_to_the_same_chunk_is_reported_by_the_data_section_c
     damage that lost nothing."""
     r = recorded
     c = r.scan.chunks[3]
-    body = c.offset + 9
-    clen = int.from_bytes(r.data[body + 28 : body + 32], "little")
-    rstart = body + 40 + clen
-    original = decompress_chunk(c.compression, r.data[rstart : c.offset + c.length], c.uncompressed_size, "")
+    rstart, rend = compressed_records(r.data, c)
+    original = decompress_chunk(c.compression, r.data[rstart:rend], c.uncompressed_size, "")
     neutral = None
-    for at in range(rstart, c.offset + c.length):
+    for at in range(rstart, rend):
         for bit in range(8):
             raw = bytearray(r.data)
             raw[at] ^= 1 << bit
             try:
-                same = decompress_chunk(c.compression, bytes(raw[rstart : c.offset + c.length]),
-                                        c.uncompressed_size, "") == original
+                same = decompress_chunk(c.compression, bytes(raw[rstart:rend]), c.uncompressed_size, "") == original
             except Exception:  # any failure to decode is a flip that the chunk CRC path sees
                 same = False
             if same:
