@@ -40,6 +40,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, TYPE_CHECKING, Any
 
+import mcap
 from mcap._chunk_builder import ChunkBuilder
 from mcap.records import Channel, Message, Schema
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType
@@ -329,7 +330,6 @@ class Recorder:
         self._messages = 0
         self._sync_request = 0
         self._sync_done = 0
-        self._lost_in_queues = 0
         self._lost_in_write = 0
         self._host = socket.gethostname()
         self._reserve = reserve_path(self._base)
@@ -422,19 +422,17 @@ class Recorder:
                     self._error = self._error or err
                     log.error("%s", err)
             self._remove_reserve()
-            if self._thread is not None and not self._thread.is_alive():
-                # Every message a source accepted was handed to the MCAP writer or is lost in a queue. Counted
-                # from the sources' own tallies here, not by the writer's last look at the queues: a producer
-                # that passed the `accepting` check just before the writer failed (or stopped) appends after
-                # that look, and its message was neither written nor counted (off by one under load).
-                self._lost_in_queues = sum(max(0, s._accepted - s._written) for s in self._hub.sources)
+            # Every message a source accepted was handed to the MCAP writer or is lost in a queue: counted from
+            # the sources' own tallies, not by the writer's last look at the queues (a producer that passed the
+            # `accepting` check just before the writer failed or stopped appends after that look).
+            lost_in_queues = sum(s._accepted - s._written for s in self._hub.sources)
             self._summary = RecordingSummary(
                 parts=tuple(self._parts),
                 messages=self._messages - self._lost_in_write,
                 sources=tuple(s.stats() for s in self._hub.sources),
                 error=self._error,
                 finalized=self._all_finalized and self._thread is not None and not self._thread.is_alive(),
-                lost_in_queues=self._lost_in_queues,
+                lost_in_queues=lost_in_queues,
                 lost_in_write=self._lost_in_write,
             )
             return self._summary
@@ -523,8 +521,7 @@ class Recorder:
             self._abandon_part(exc)
         finally:
             self._hub.accepting = False
-            if self._error is not None:
-                self._lost_in_queues = sum(len(s._q) for s in self._hub.sources)
+            if self._error is not None:  # what is left is lost (counted by stop() from the sources' tallies)
                 for s in self._hub.sources:
                     s._q.clear()
                 self.failed.set()
@@ -966,16 +963,10 @@ def _self_describing_chunks(writer: McapWriter) -> None:
         channels = writer._Writer__channels  # type: ignore[attr-defined]
         builder = writer._Writer__chunk_builder  # type: ignore[attr-defined]
     except AttributeError as exc:
-        raise RigError(f"mcap {_mcap_version()}: its Writer no longer has the chunk builder the recorder "
-                            f"replaces ({exc}); pin mcap to a version this recorder supports") from exc
+        raise RigError(f"mcap {mcap.__version__}: its Writer no longer has the chunk builder the recorder "
+                       f"replaces ({exc}); pin mcap to a version this recorder supports") from exc
     if builder is not None:  # None: chunking off (chunk_size 0 is refused by RecorderOptions)
         writer._Writer__chunk_builder = _SelfDescribingChunkBuilder(schemas, channels)  # type: ignore[attr-defined]
-
-
-def _mcap_version() -> str:
-    from importlib.metadata import version
-
-    return version("mcap")
 
 
 def _flush_writer(writer: McapWriter) -> None:
