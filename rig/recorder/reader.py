@@ -780,7 +780,7 @@ class _Scanner:
             pos = nxt
             if op == _OP_DATA_END:
                 scan.data_end_found = True
-                self.check_data_section(pos - 13)
+                self.check_data_section(pos - 13)  # the DataEnd record: 9-byte header + its CRC
                 scan.finalized = _has_footer(mm)
                 if not scan.finalized:
                     scan.truncation = "the part ends inside its summary (all data is there; no index)"
@@ -799,9 +799,11 @@ class _Scanner:
         if not self.validate_crcs or self.pending:
             return
         (crc,) = struct.unpack_from("<I", self.mm, data_end + 9)
+        if not crc:  # 0: not computed (files of older recorders, `rig recover`'s copies)
+            return
         with memoryview(self.mm) as whole, whole[:data_end] as data:
             actual = zlib.crc32(data)
-        if crc and actual != crc:
+        if actual != crc:
             self.scan.damage.append(DamagedRegion(
                 0, data_end, DamageKind.DATA,
                 "the data section's CRC (its DataEnd record) does not match, though every record in it checks"))
