@@ -843,25 +843,29 @@ class SimReceiver(abc.ABC):
             while not self._stop.is_set():
                 self._serve_requests()
                 now = self.clock.now_ns()
-                self._produce(self.timebase.gps_ns(now) - latency_ns)
+                # an epoch's logs are made at its data time and written output_latency_s later: the
+                # work is done while simulated time runs on towards the write
+                self._produce(self.timebase.gps_ns(now))
                 next_write = self._flush(now)
                 wake: int | None = next_write
+                due = next_write
                 t_data = self._next_data_time()
                 if t_data is not None:
-                    c = self.timebase.clock_ns(t_data) + latency_ns
+                    c = self.timebase.clock_ns(t_data)
                     wake = c if wake is None else min(wake, c)
+                    due = c + latency_ns if due is None else min(due, c + latency_ns)
                 timeout = 0.1 if wake is None else min(0.1, max(0.0, (wake - self.clock.now_ns()) / speed / NS_PER_S))
                 if self._governed:
-                    # simulated time waits for this receiver's next output and for its readers
-                    # simulated time stands still at this receiver's next write until it has written, and
-                    # at a write until it is read (not the budget past them): the readers' receive stamps
-                    # of GNSS data are the session's host → GPS time base, and a clock that ran the budget
+                    # simulated time stands still at this receiver's next write until it has written (its
+                    # first possible write, data time + output latency, until its logs are made), and at
+                    # a write until it is read (not the budget past them): the readers' receive stamps of
+                    # GNSS data are the session's host → GPS time base, and a clock that ran the budget
                     # past every late wake-up would put all of them the budget late
                     closed: list[str] = []
                     unread = self._unread_since(closed)
                     for port in closed:
                         me.reader_closed(port)
-                    me.at(min(UNBOUNDED_NS if wake is None else wake - hold_back,
+                    me.at(min(UNBOUNDED_NS if due is None else due - hold_back,
                               UNBOUNDED_NS if unread is None else unread - hold_back))
                     if unread is not None:
                         # the clock stands still until the reader has read: look again soon (a select
