@@ -7,11 +7,14 @@ faster than real time and tests never depend on the machine's wall clock.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import enum
 import fcntl
 import logging
 import mmap
 import os
+import platform
+import sys
 import tempfile
 import threading
 import time
@@ -111,13 +114,20 @@ class ScaledClock:
         return t
 
     def sleep_until_ns(self, t_ns: int, stop: threading.Event | None = None) -> bool:
+        gov = self.governor
         while True:
+            seen = gov.change_count() if gov is not None else 0  # before the look: no change is missed
             delay = (t_ns - self.now_ns()) / self._speed / 1e9
             if delay <= 0:
                 return not (stop is not None and stop.is_set())
-            if self.governor is not None:
-                # a paused clock reaches t later than the wall clock says: look again soon
-                delay = max(min(delay, 0.02), 0.0005) if self.governor.paused_now() else delay
+            if gov is not None and gov.paused_now():
+                # a paused clock reaches t later than the wall clock says, and runs again only when a
+                # participant changes something: wait for that (at most 20 ms: a stop is seen then)
+                if stop is not None and stop.is_set():
+                    return False
+                if gov.wait_for_change(seen, _PAUSED_WAIT_S):
+                    continue
+                delay = max(min(delay, _PAUSED_WAIT_S), 0.0005)  # no futex here: look again soon
             if stop is None:
                 time.sleep(delay)
             elif stop.wait(delay):
@@ -129,6 +139,9 @@ class ScaledClock:
 # ---------------------------------------------------------------------------------------------
 # The governed scaled clock: simulated time that waits for whoever fell behind
 # ---------------------------------------------------------------------------------------------
+
+_PAUSED_WAIT_S = 0.02
+"""Longest wait (wall s) of a sleeper on a paused clock before it looks again (and at its stop event)."""
 
 UNBOUNDED_NS = (1 << 63) - 1
 """Progress of a participant that holds nothing back (idle, finished); also the value of a consumer
@@ -241,6 +254,38 @@ class GovernorStats:
                 "blamed_wall_ns": dict(self.blamed_wall_ns)}
 
 
+_FUTEX_WAIT, _FUTEX_WAKE = 0, 1
+_SYS_FUTEX = {"x86_64": 202, "amd64": 202, "aarch64": 98, "arm64": 98, "riscv64": 98, "i386": 240, "i686": 240,
+              "armv7l": 240, "armv6l": 240, "ppc64le": 221, "s390x": 238}
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = (("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long))
+
+
+def _futex_syscall() -> Any:
+    """libc's ``syscall`` set up for futex(2), or None (not Linux, an unknown machine, no libc)."""
+    number = _SYS_FUTEX.get(platform.machine().lower()) if sys.platform.startswith("linux") else None
+    if number is None:
+        return None
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).syscall
+    except (OSError, AttributeError):
+        return None
+    fn.restype = ctypes.c_long
+    fn.argtypes = (ctypes.c_long, ctypes.c_void_p, ctypes.c_int, ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p,
+                   ctypes.c_int)
+
+    def futex(addr: int, op: int, val: int, timeout: _Timespec | None) -> int:
+        return int(fn(number, addr, op, val, ctypes.byref(timeout) if timeout is not None else None, None, 0))
+
+    return futex
+
+
+_FUTEX = _futex_syscall()
+"""futex(addr, op, val, timeout) (a shared futex: the governor's file is mapped in several processes), or None."""
+
+
 class ClockGovernor:
     """State shared by every copy of a governed :class:`ScaledClock`, in every process.
 
@@ -268,6 +313,10 @@ class ClockGovernor:
     longer, its figures do not get worse. Only as a last resort, after ``stall_limit_s`` of wall
     time on end (default :data:`SAFETY_LIMIT_S`), is a live participant released, with a log error.
     Every release is kept as a :class:`GovernorRelease` (:meth:`releases`) for the session's events.
+
+    Every write bumps a shared change counter and wakes (Linux futex) whoever sleeps on it: a device
+    whose time is after a pause sleeps until a participant changes something
+    (:meth:`wait_for_change`) instead of polling, so it acts the moment the clock runs again.
     """
 
     def __init__(self, path: str, budget_ns: int, stall_limit_s: float, *, create: bool) -> None:
@@ -296,6 +345,13 @@ class ClockGovernor:
             self._mm.close()
             os.close(self._fd)
             raise ValueError(f"clock governor {path}: not a governor state file (of this version)")
+        # the change counter's low 32 bits are the futex word every write wakes (see wait_for_change)
+        self._futex_word: ctypes.c_int32 | None = None
+        self._futex_addr = 0
+        if _FUTEX is not None:
+            low = 0 if sys.byteorder == "little" else 4
+            self._futex_word = ctypes.c_int32.from_buffer(self._mm, _H_EPOCH * 8 + low)
+            self._futex_addr = ctypes.addressof(self._futex_word)
         self._tlock = threading.Lock()
         self._final = (0, 0)
         self._stats: GovernorStats | None = None
@@ -321,6 +377,8 @@ class ClockGovernor:
                 return
             self._stats = self.stats()
             self._final = (int(self._w[_H_PAUSED]), int(self._w[_H_HIGH]))
+            self._futex_addr = 0
+            self._futex_word = None  # the mapping cannot close while a ctypes view of it lives
             self._w.release()
             with contextlib.suppress(BufferError):
                 self._mm.close()
@@ -357,7 +415,7 @@ class ClockGovernor:
                 w[base + _S_COUNT] = ALL_FRAMES
                 w[base + _S_VALUE] = value
                 w[base + _S_PROGRESS] = progress_ns
-                w[_H_EPOCH] += 1
+                self._changed(w)
                 return names.index(name)
             if n >= _MAX_SLOTS:
                 raise ValueError(f"clock governor: no slot left for participant {name!r} ({_MAX_SLOTS} in use)")
@@ -375,15 +433,39 @@ class ClockGovernor:
             for i in range(_SLOT - _S_NAME):
                 w[base + _S_NAME + i] = int.from_bytes(raw[8 * i: 8 * i + 8], "little", signed=True)
             w[_H_SLOTS] = n + 1
-            w[_H_EPOCH] += 1
+            self._changed(w)
             return n
+
+    def _changed(self, w: memoryview) -> None:
+        """Bump the change counter and wake every sleeper on it (after the write it announces)."""
+        w[_H_EPOCH] += 1
+        if self._futex_addr and _FUTEX is not None:
+            _FUTEX(self._futex_addr, _FUTEX_WAKE, 0x7FFFFFFF, None)
+
+    def change_count(self) -> int:
+        """The shared change counter (read it before looking at the clock; see :meth:`wait_for_change`)."""
+        return int(self._w[_H_EPOCH]) if self._fd >= 0 else 0
+
+    def wait_for_change(self, seen: int, timeout_s: float) -> bool:
+        """Sleep until the change counter is no longer ``seen`` (a participant wrote something), at
+        most ``timeout_s``; True when it waited (or saw the change), False when this system has no
+        futex (the caller polls instead)."""
+        addr = self._futex_addr
+        if not addr or _FUTEX is None:
+            return False
+        if timeout_s > 0:
+            sec = int(timeout_s)
+            ts = _Timespec(sec, int((timeout_s - sec) * 1e9))
+            low = seen & 0xFFFFFFFF
+            _FUTEX(addr, _FUTEX_WAIT, low - (1 << 32) if low >= 1 << 31 else low, ts)
+        return True
 
     def publish(self, slot: int, progress_ns: int) -> None:
         """Set a slot's progress (one writer per slot: an aligned 8-byte store needs no lock)."""
         if self._fd >= 0:
             w = self._w
             w[_HDR + slot * _SLOT + _S_PROGRESS] = progress_ns
-            w[_H_EPOCH] += 1
+            self._changed(w)
 
     def set_thread(self, slot: int, tid: int) -> None:
         """Name the thread (native id) that does slot ``slot``'s work: its end releases the slot."""
@@ -395,14 +477,14 @@ class ClockGovernor:
         if self._fd >= 0:
             w = self._w
             w[_HDR + slot * _SLOT + _S_VALUE] = value
-            w[_H_EPOCH] += 1
+            self._changed(w)
 
     def link(self, producer: int, consumer: int) -> None:
         """Make ``consumer`` the reader of what ``producer`` sends (see :meth:`sent`)."""
         if self._fd >= 0:
             w = self._w
             w[_HDR + producer * _SLOT + _S_PEER] = consumer + 1
-            w[_H_EPOCH] += 1
+            self._changed(w)
 
     def sent(self, slot: int, stamp_ns: int) -> None:
         """Producer ``slot`` sends a frame stamped ``stamp_ns`` now (stamps never decrease)."""
@@ -419,7 +501,7 @@ class ClockGovernor:
                 w[base + _S_VALUE] = stamp_ns
             else:
                 w[base + _S_COUNT] += 1
-            w[_H_EPOCH] += 1
+            self._changed(w)
 
     def took(self, slot: int, stamp_ns: int, count: int) -> None:
         """Consumer ``slot`` has taken ``count`` frames stamped ``stamp_ns`` (and all before them)."""
@@ -428,7 +510,7 @@ class ClockGovernor:
             w = self._w
             w[base + _S_COUNT] = count  # the count first: seen early it only means fewer taken
             w[base + _S_VALUE] = stamp_ns
-            w[_H_EPOCH] += 1
+            self._changed(w)
 
     def find(self, name: str) -> int | None:
         """The slot index of participant ``name`` (None: not registered)."""
@@ -463,6 +545,7 @@ class ClockGovernor:
         """Stop governing: from now on the clock runs freely (the end of a recording)."""
         with self._locked() as w:
             w[_H_OFF] = 1
+            self._changed(w)
 
     def _slowest(self, w: memoryview) -> tuple[int, int, int]:
         """(effective progress, slot holding it, slot to blame) of the slowest live participant;
@@ -574,7 +657,7 @@ class ClockGovernor:
         if reason is None:
             return
         w[_HDR + who * _SLOT + _S_IGNORED] = progress
-        w[_H_EPOCH] += 1
+        self._changed(w)
         w[_H_IGNORED] += 1
         w[_H_CLAMP_SINCE] = 0
         rel = self._record(w, blame, reason, detail, t, held)
