@@ -240,11 +240,12 @@ class SimWorld:
         sync_period_s: interval of the sync switch's pulses.
         truth_rate_hz: rate of the ground truth (and of ``/sim/truth``).
         truth: the drive's ground truth when it has been simulated already (with this configuration).
-        device_process: run the simulated receivers and ECUs in a separate process (see
-            :class:`_DeviceHost`), as real devices run on their own hardware: the recording process
-            then has the interpreter to itself, so the clock can run faster. The DAQ and the
-            truth topic stay in this process; faults (unplugging) of receivers and ECUs are only
-            available with the devices in this process.
+        device_process: run the simulated receivers and ECUs in processes of their own (see
+            :class:`_DeviceHost`), as real devices run on their own hardware: the receivers in
+            one, the ECUs in another, so neither waits for the interpreter while the other works
+            and the recording process has its own to itself. The DAQ and the truth topic stay in
+            this process; faults (unplugging) of receivers and ECUs are only available with the
+            devices in this process.
         governed: run a governed clock (default ``simulation.governed``): simulated time waits,
             in both processes (:class:`~vsccore.clock.ClockGovernor`): it stands still at each ECU
             frame and GNSS write until it is sent, at each GNSS write until it is read, and at most
@@ -266,6 +267,7 @@ class SimWorld:
         truth: GroundTruth | None = None,
         device_process: bool = False,
         governed: bool | None = None,
+        _part: DevicePart | None = None,
     ) -> None:
         if cfg.simulation is None:
             raise ConfigError("simulation: a simulated session needs a [simulation] table in its configuration")
@@ -291,20 +293,27 @@ class SimWorld:
             sim.start_gps_week, sim.start_gps_seconds, leap_seconds=sim.gnss.leap_seconds
         )
         self._sim_receivers = [r for r in cfg.receivers if r.port.startswith(SIM_PREFIX)]
+        self._virtual_can = [c for c in cfg.can if c.interface == "virtual"]
         has_rover = any(r.role == "rover" for r in self._sim_receivers)
         self.lead_s = float(lead_s if lead_s is not None else (self.rtk.time_to_fix_s + 4.0 if has_rover else 1.0))
         self.duration_s = float(self.truth.t[-1])
         self.sync_period_s = sync_period_s
         self.sync = SyncSchedule.for_truth(self.timebase, -self.lead_s + 0.5, self.duration_s, sync_period_s)
         self.truth_t0_utc_ns = gps_ns_to_unix_ns(self.timebase.truth_start_gps_ns, sim.gnss.leap_seconds)
-        self._virtual_can = [c for c in cfg.can if c.interface == "virtual"]
         self._ecu_config = VscEcuConfig(seed=sim.seed, swa_offset_rad=math.radians(sim.true_swa_offset_deg))
-        self._host: _DeviceHost | None = _DeviceHost(self) if device_process else None
+        self._hosts: list[_DeviceHost] = []
+        if device_process:
+            parts = (DevicePart(receivers=True, ecus=False), DevicePart(receivers=False, ecus=True))
+            self._hosts = [_DeviceHost(self, part) for part in parts
+                           if (part.receivers and self._sim_receivers) or (part.ecus and self._virtual_can)]
+        elif _part is not None:  # this world is one device process's part of the recording's world
+            self._sim_receivers = self._sim_receivers if _part.receivers else []
+            self._virtual_can = self._virtual_can if _part.ecus else []
         # Computed before the clock starts, so the ECU is on time from its first frame (and past the
         # drive's end: the ECU runs on until the world stops).
         self._ecu_outputs: EcuOutputs | None = (
             simulate_ecu(self.truth, self._ecu_config, t_end_s=float(self.truth.t[-1]) + RUN_ON_STRETCH_S)
-            if self._virtual_can and not device_process else None
+            if self._virtual_can and not self._hosts else None
         )
         self.clock: ScaledClock | None = None
         self.receivers: dict[str, SimReceiver] = {}
@@ -342,17 +351,19 @@ class SimWorld:
         if self.clock is not None:
             raise SimulationError("sim world already started")
         try:
-            if self._host is not None:
-                # the host process imports and builds its devices before the clock starts
-                self._host.spawn()
+            # the device processes import and build their devices (side by side) before the clock starts
+            for host in self._hosts:
+                host.launch()
+            for host in self._hosts:
+                host.load()
             if clock is None:
                 governor = (ClockGovernor.create(round(self.sim.governor_budget_ms * 1e6))
                             if self.governed else None)
                 clock = self.timebase.make_clock(self.speed, self.lead_s, governor)
             self.clock = clock
-            if self._host is not None:
-                self._host.start(self.clock)
-            else:
+            for host in self._hosts:
+                host.start(self.clock)
+            if not self._hosts:
                 self._dir = Path(tempfile.mkdtemp(prefix="vsc-simworld-"))
                 for rc in self._sim_receivers:
                     self._start_receiver(rc, self.clock, self._dir)
@@ -373,8 +384,8 @@ class SimWorld:
         for each port that lost any), DAQ segments started. Kept after :meth:`stop`; with the devices
         in their own process, their figures as of the last :meth:`report_device_losses` (or stop)."""
         out = dict(self._final_health)
-        if self._host is not None:
-            out.update(self._host.health)
+        for host in self._hosts:
+            out.update(host.health)
         for channel, ecu in self.ecus.items():
             out[f"ecu:{channel}"] = {"frames_sent": ecu.frames_sent, "frames_skipped": ecu.frames_skipped}
         for name, rx in self.receivers.items():
@@ -386,9 +397,9 @@ class SimWorld:
         """Stop every device and join its thread; remove the port links (idempotent)."""
         errors: list[BaseException] = []
         self._stop_truth()
-        if self._host is not None:
+        for host in self._hosts:
             try:
-                self._host.stop()
+                host.stop()
             except SimulationError as exc:
                 errors.append(exc)
         if self.ecus or self.receivers:
@@ -472,8 +483,8 @@ class SimWorld:
         if not final and now < self._losses_polled + DEVICE_LOSS_POLL_S:
             return
         self._losses_polled = now
-        if self._host is not None:
-            self._host.poll_health()
+        for host in self._hosts:
+            host.poll_health()
         for key, figures in sorted(self.health().items()):
             if not key.startswith("gnss:"):
                 continue
@@ -587,15 +598,15 @@ class SimWorld:
         """The device path of a receiver's command port (its pty for ``sim://NAME``)."""
         if not receiver.port.startswith(SIM_PREFIX):
             return receiver.port
-        if self._host is not None:
-            return self._host.ports(receiver)[0]
+        if self._hosts:
+            return self._host_of(receiver).ports(receiver)[0]
         rx, _ = self._receiver_for(receiver.port, f"receivers.{receiver.name}.port")
         return rx.port_path
 
     def correction_port(self, receiver: ReceiverConfig) -> str | None:
         """The device path wired to a receiver's correction port (None: use its command port)."""
-        if self._host is not None:
-            return self._host.ports(receiver)[1]
+        if self._hosts:
+            return self._host_of(receiver).ports(receiver)[1]
         if receiver.correction_device is not None:
             if not receiver.correction_device.startswith(SIM_PREFIX):
                 return receiver.correction_device
@@ -605,6 +616,18 @@ class SimWorld:
             rx, _ = self._receiver_for(receiver.port, f"receivers.{receiver.name}.port")
             return str(rx.port(receiver.correction_port).path)
         return None
+
+    def _host_of(self, receiver: ReceiverConfig) -> _DeviceHost:
+        for host in self._hosts:
+            if host.part.receivers:
+                return host
+        raise ConfigError(f"receivers.{receiver.name}: no simulated ports for it (no device process runs receivers)")
+
+    def _can_host(self) -> _DeviceHost:
+        for host in self._hosts:
+            if host.part.ecus:
+                return host
+        raise ConfigError("can: no device process runs the simulated ECUs")
 
     # --- the host's CAN adapter ------------------------------------------------------------------
 
@@ -620,8 +643,8 @@ class SimWorld:
         if config.interface == "virtual" and self.clock is not None:
             reader = participant(self.clock, can_reader_name(config.channel), progress_ns=UNBOUNDED_NS, reuse=True,
                                  value=UNBOUNDED_NS)
-        if self._host is not None and config.interface == "virtual":
-            config = self._host.can_config(config)
+        if self._hosts and config.interface == "virtual":
+            config = self._can_host().can_config(config)
         return _LinkedBus(open_bus(config), self.can_link, reader)
 
     # --- the simulated DAQ -----------------------------------------------------------------------
@@ -781,9 +804,24 @@ DEVICE_LOSS_POLL_S = 1.0
 
 
 @dataclass(frozen=True, slots=True)
+class DevicePart:
+    """Which of a world's simulated devices one device process runs."""
+
+    receivers: bool
+    """The simulated GNSS receivers (all of them: one may be wired to another's port)."""
+    ecus: bool
+    """The simulated ECUs of the virtual CAN buses, served by socketcand."""
+
+    @property
+    def label(self) -> str:
+        return "+".join(n for n, on in (("receivers", self.receivers), ("ECUs", self.ecus)) if on)
+
+
+@dataclass(frozen=True, slots=True)
 class _HostSpec:
     """What the device process needs to build the same world (pickled to it)."""
 
+    part: DevicePart
     cfg: SessionConfig
     truth: GroundTruth
     speed: float
@@ -793,7 +831,8 @@ class _HostSpec:
 
 
 class _DeviceHost:
-    """The simulated receivers and ECUs of a :class:`SimWorld`, run in a child process.
+    """A part of the simulated devices of a :class:`SimWorld` (:class:`DevicePart`: its receivers, or its
+    ECUs), run in a child process.
 
     Protocol on a :func:`multiprocessing.Pipe` (pickled tuples): child → ``("loaded",)`` once it has
     imported and built its world (before the clock starts, so its start-up costs no simulated
@@ -806,8 +845,9 @@ class _DeviceHost:
     stops when the pipe closes (the parent died).
     """
 
-    def __init__(self, world: SimWorld) -> None:
+    def __init__(self, world: SimWorld, part: DevicePart) -> None:
         self._world = world
+        self.part = part
         self._proc: BaseProcess | None = None
         self._conn: Connection | None = None
         self._ports: dict[str, tuple[str, str | None]] = {}
@@ -815,22 +855,28 @@ class _DeviceHost:
         self.health: dict[str, dict[str, int]] = {}
         self._health_asked = 0
 
-    def spawn(self) -> None:
-        w = self._world
+    def launch(self) -> None:
+        """Start the process (it imports while the parent goes on)."""
         ctx = multiprocessing.get_context("spawn")  # never fork a process that runs threads
         parent, child = ctx.Pipe()
-        spec = _HostSpec(w.cfg, w.truth, w.speed, w.lead_s, w.rtk, w.sync_period_s)
-        proc = ctx.Process(target=_device_host_main, args=(child,), name="vsc-sim-devices", daemon=True)
+        proc = ctx.Process(target=_device_host_main, args=(child,), name=f"vsc-sim-{self.part.label}", daemon=True)
         proc.start()
         child.close()
         self._proc, self._conn = proc, parent
+
+    def load(self) -> None:
+        """Send the world's spec and wait until the process has built its devices."""
+        w = self._world
+        proc, conn = self._proc, self._conn
+        assert proc is not None and conn is not None
+        spec = _HostSpec(self.part, w.cfg, w.truth, w.speed, w.lead_s, w.rtk, w.sync_period_s)
         # The spec (tens of MB of truth) goes over our pipe, not in the spawn arguments: a child that
         # dies while starting then breaks the pipe instead of leaving the parent blocked on a write.
         try:
-            parent.send(spec)
+            conn.send(spec)
         except OSError as exc:
             proc.join(1.0)
-            raise SimulationError(f"simulated devices: their process ended while starting "
+            raise SimulationError(f"simulated devices ({self.part.label}): their process ended while starting "
                                   f"(exit code {proc.exitcode}): {exc}") from exc
         self._expect("loaded")
 
@@ -838,7 +884,7 @@ class _DeviceHost:
         assert self._conn is not None
         self._conn.send(("start", clock))
         _, self._ports, self._can_port = self._expect("ready")
-        log.info("sim world: devices in process %s (socketcand port %s)",
+        log.info("sim world: %s in process %s (socketcand port %s)", self.part.label,
                  self._proc.pid if self._proc else None, self._can_port)
 
     def _expect(self, what: str) -> tuple[Any, ...]:
@@ -851,17 +897,20 @@ class _DeviceHost:
                     msg = conn.recv()
                 except EOFError:
                     proc.join(1.0)
-                    raise SimulationError(f"simulated devices: their process ended (exit code {proc.exitcode}) "
+                    raise SimulationError(f"simulated devices ({self.part.label}): their process ended "
+                                      f"(exit code {proc.exitcode}) "
                                           f"before it was {what}") from None
                 if msg[0] == what:
                     return tuple(msg)
                 if msg[0] == "error":
-                    raise SimulationError(f"simulated devices: {msg[1]}")
+                    raise SimulationError(f"simulated devices ({self.part.label}): {msg[1]}")
             elif not proc.is_alive():
-                raise SimulationError(f"simulated devices: their process exited with code {proc.exitcode} "
+                raise SimulationError(f"simulated devices ({self.part.label}): their process exited with code "
+                                      f"{proc.exitcode} "
                                       f"before it was {what}")
             if time.monotonic() > deadline:
-                raise SimulationError(f"simulated devices: not {what} within {_HOST_START_TIMEOUT_S:.0f} s")
+                raise SimulationError(f"simulated devices ({self.part.label}): not {what} within "
+                                      f"{_HOST_START_TIMEOUT_S:.0f} s")
 
     def ports(self, receiver: ReceiverConfig) -> tuple[str, str | None]:
         try:
@@ -933,7 +982,7 @@ class _DeviceHost:
             with contextlib.suppress(ValueError):
                 proc.close()
         if error is not None:
-            raise SimulationError(f"simulated devices: {error}")
+            raise SimulationError(f"simulated devices ({self.part.label}): {error}")
 
 
 def _device_host_main(conn: Connection) -> None:
@@ -948,7 +997,7 @@ def _device_host_main(conn: Connection) -> None:
     try:
         spec: _HostSpec = conn.recv()
         world = SimWorld(spec.cfg, speed=spec.speed, lead_s=spec.lead_s, rtk=spec.rtk,
-                         sync_period_s=spec.sync_period_s, truth=spec.truth)
+                         sync_period_s=spec.sync_period_s, truth=spec.truth, _part=spec.part)
         conn.send(("loaded",))
         msg = conn.recv()
         if msg[0] != "start":
@@ -956,7 +1005,8 @@ def _device_host_main(conn: Connection) -> None:
         world.start(clock=msg[1])
         ports = {rc.name: (world.port(rc), world.correction_port(rc))
                  for rc in spec.cfg.receivers
-                 if rc.port.startswith(SIM_PREFIX) or (rc.correction_device or "").startswith(SIM_PREFIX)}
+                 if spec.part.receivers
+                 and (rc.port.startswith(SIM_PREFIX) or (rc.correction_device or "").startswith(SIM_PREFIX))}
         can_port = None
         if world.ecus:
             server = SocketcandServer(virtual_channel_opener({ch: ch for ch in world.ecus}), host="127.0.0.1")

@@ -1,4 +1,4 @@
-"""Simulated receivers and ECU in a process of their own (``record_simulated(device_process=True)``).
+"""Simulated receivers and ECU in processes of their own (``record_simulated(device_process=True)``).
 
 The recording process then reaches the rovers through their pseudo-terminals and the ECU through a
 socketcand server on 127.0.0.1, exactly as it reaches real devices; these tests check that the
@@ -25,8 +25,13 @@ from vsccore.errors import SimulationError
 
 def test_devices_in_their_own_process_record_every_stream(tmp_path: Path) -> None:
     cfg = config("straight:duration_s=12", 4.0)
+    running: list[str] = []
     rec = record_simulated(cfg, tmp_path, name="proc", rtk=FAST_RTK, lead_s=4.0, config_path=demo_config_path(),
-                           device_process=True)
+                           device_process=True,
+                           on_started=lambda _s: running.extend(p.name for p in multiprocessing.active_children()))
+    # the receivers and the ECU in processes of their own: an epoch's GNSS logs being made never
+    # keeps the ECU from the interpreter when a CAN frame is due (nor the other way round)
+    assert sorted(n for n in running if n.startswith("vsc-sim-")) == ["vsc-sim-ECUs", "vsc-sim-receivers"]
     assert rec.completed and rec.summary.recording.error is None
     assert rec.summary.recording.dropped == 0
     assert multiprocessing.active_children() == []  # the device process has ended and been joined
