@@ -412,3 +412,109 @@ def test_a_governed_world_ends_0_1_s_after_the_last_gnss_output_not_0_5_s() -> N
         world = SimWorld(cfg, governed=governed)
         drive_end_ns = world.timebase.truth_start_ns + round(world.duration_s * 1e9)
         assert world.end_ns - drive_end_ns - latency_ns == pytest.approx(tail_ns, abs=1_000)
+
+
+def _counting_looks(clock: ScaledClock) -> list[int]:
+    """Count the sleeper's looks at the clock (each call of the governor's now_ns)."""
+    gov = clock.governor
+    assert gov is not None
+    looks = [0]
+    inner = gov.now_ns
+
+    def now_ns(start_ns: int, speed: float, mono0: int) -> int:
+        looks[0] += 1
+        return inner(start_ns, speed, mono0)
+
+    gov.now_ns = now_ns  # type: ignore[method-assign]
+    return looks
+
+
+def test_a_sleeper_on_a_paused_clock_waits_for_a_change_instead_of_polling(governor: ClockGovernor) -> None:
+    # issue 15: sleepers looked again every 0.5-20 ms while the clock stood still, and one whose time
+    # came just after a pause slept on for up to 0.5 ms, holding the clock in turn
+    holder_clock = ScaledClock(0, 1.0, governor=governor)
+    holder = participant(holder_clock, "slow device")
+    holder.at(100 * MS)
+    assert _wait_until(lambda: holder_clock.now_ns() == 105 * MS and governor.paused_now())
+    sleeper_clock = pickle.loads(pickle.dumps(holder_clock))  # a copy, as in another device's process
+    looks = _counting_looks(sleeper_clock)
+    woke = threading.Event()
+
+    def sleeper() -> None:
+        # 1 µs past where the clock stands: the old code polled every 0.5 ms for it
+        if sleeper_clock.sleep_until_ns(105 * MS + 1_000):
+            woke.set()
+
+    thread = threading.Thread(target=sleeper)
+    thread.start()
+    try:
+        assert not woke.wait(0.3)  # held: the sleeper must not get its time
+        # 0.3 s held: at most one look per 20 ms (+ the first); polling every 0.5 ms made ~600
+        assert looks[0] <= 0.3 / 0.02 + 3, looks[0]
+        holder.at(UNBOUNDED_NS)  # the change that lets the clock run: wakes the sleeper
+        assert woke.wait(10.0)
+    finally:
+        holder.at(UNBOUNDED_NS)
+        thread.join(10.0)
+    assert not thread.is_alive()
+    sleeper_clock.governor.close()  # type: ignore[union-attr]
+
+
+def _change_waiter(clock: ScaledClock, conn: object, wait_s: float) -> None:
+    gov = clock.governor
+    assert gov is not None
+    seen = gov.change_count()
+    conn.send("waiting")  # type: ignore[attr-defined]
+    t0 = time.monotonic()
+    waited = gov.wait_for_change(seen, wait_s)
+    conn.send((waited, gov.change_count() != seen, time.monotonic() - t0))  # type: ignore[attr-defined]
+    gov.close()
+
+
+def test_a_change_wakes_a_sleeper_in_another_process(governor: ClockGovernor) -> None:
+    clock = ScaledClock(0, 1.0, governor=governor)
+    ctx = multiprocessing.get_context("spawn")
+    parent, child = ctx.Pipe()
+    proc = ctx.Process(target=_change_waiter, args=(clock, child, 60.0))
+    proc.start()
+    try:
+        assert parent.poll(240.0) and parent.recv() == "waiting"
+        me = participant(clock, "device")  # a write to the shared state: wakes the other process
+        me.at(5 * MS)
+        assert parent.poll(30.0)  # not its 60 s: woken by the change (a lost wake-up fails here)
+        waited, changed, elapsed = parent.recv()
+        assert waited and changed and elapsed < 30.0
+    finally:
+        proc.join(30.0)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+    assert proc.exitcode == 0
+
+
+def test_a_receiver_makes_its_logs_while_the_clock_runs_to_their_output_time() -> None:
+    """An epoch's logs are made at their data time and written ``output_latency_s`` later: the clock
+    runs on while the receiver works, and stands still for it only if the work takes longer than that
+    (the old receiver made them at the write time, so the clock stood still for all of the work)."""
+    gov = ClockGovernor.create(1 * MS)
+    tb = SimTimeBase.from_gps_start(2400, 345600.0, leap_seconds=18)
+    clock = tb.make_clock(1.0, governor=gov)
+    base = SimBase("base", position=(48.7758, 9.1829, 300.0), timebase=tb, clock=clock, output_latency_s=0.3,
+                   latency_jitter_s=0.0)
+    made: list[int] = []
+    inner = base.message
+
+    def slow_message(*args: object, **kwargs: object) -> object:
+        time.sleep(0.02)  # 20 ms of work per log: 60-100 ms per epoch, well inside the 300 ms latency
+        made.append(time.monotonic_ns())
+        return inner(*args, **kwargs)  # type: ignore[arg-type]
+
+    base.message = slow_message  # type: ignore[method-assign]
+    base.start()
+    try:
+        assert _wait_until(lambda: len({t // 500_000_000 for t in made}) >= 3, 60.0)  # three epochs made
+        blamed = gov.stats().blamed_wall_ns.get("gnss:base", 0)
+        assert blamed < 20 * MS, f"the clock stood still {blamed / MS:.0f} ms for the base's work"
+    finally:
+        base.stop()
+        gov.close()
