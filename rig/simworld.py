@@ -618,16 +618,18 @@ class SimWorld:
         return None
 
     def _host_of(self, receiver: ReceiverConfig) -> _DeviceHost:
-        for host in self._hosts:
-            if host.part.receivers:
-                return host
-        raise ConfigError(f"receivers.{receiver.name}: no simulated ports for it (no device process runs receivers)")
+        """The device process that runs the simulated receivers."""
+        return self._host_running(lambda part: part.receivers, f"receivers.{receiver.name}", "receivers")
 
     def _can_host(self) -> _DeviceHost:
+        """The device process that runs the simulated ECUs."""
+        return self._host_running(lambda part: part.ecus, "can", "ECUs")
+
+    def _host_running(self, runs: Callable[[DevicePart], bool], key: str, what: str) -> _DeviceHost:
         for host in self._hosts:
-            if host.part.ecus:
+            if runs(host.part):
                 return host
-        raise ConfigError("can: no device process runs the simulated ECUs")
+        raise ConfigError(f"{key}: no device process runs the simulated {what}")
 
     # --- the host's CAN adapter ------------------------------------------------------------------
 
@@ -995,7 +997,9 @@ def _device_host_main(conn: Connection) -> None:
     world: SimWorld | None = None
     server: SocketcandServer | None = None
     try:
-        spec: _HostSpec = conn.recv()
+        spec = conn.recv()
+        if not isinstance(spec, _HostSpec):  # stopped before it got its part (another device process failed)
+            return
         world = SimWorld(spec.cfg, speed=spec.speed, lead_s=spec.lead_s, rtk=spec.rtk,
                          sync_period_s=spec.sync_period_s, truth=spec.truth, _part=spec.part)
         conn.send(("loaded",))
