@@ -28,6 +28,14 @@ def governor() -> Iterator[ClockGovernor]:
     gov.close()
 
 
+def _join(proc: multiprocessing.process.BaseProcess) -> None:
+    """Join a child process (killed if it has not ended within 30 s)."""
+    proc.join(30.0)
+    if proc.is_alive():
+        proc.kill()
+        proc.join()
+
+
 def _wait_until(pred: object, timeout_s: float = 10.0) -> bool:
     done = threading.Event()
     deadline = time.monotonic() + timeout_s
@@ -87,14 +95,11 @@ def test_a_participant_in_another_process_holds_the_same_clock(governor: ClockGo
         assert _wait_until(lambda: clock.now_ns() > 500 * MS)
         parent.send("end")
     finally:
-        proc.join(30.0)
-        if proc.is_alive():
-            proc.kill()
-            proc.join()
+        _join(proc)
     assert proc.exitcode == 0
     copy = pickle.loads(pickle.dumps(clock))
     assert copy.now_ns() >= clock.now_ns() - 1_000 * MS  # the same clock, not a new one from 0
-    copy.governor.close()  # type: ignore[union-attr]
+    copy.governor.close()
 
 
 def test_a_live_participant_stalled_past_the_safety_limit_is_released_with_an_error_record() -> None:
@@ -221,10 +226,7 @@ def test_a_participant_whose_process_ended_releases_the_clock_promptly(governor:
         assert _wait_until(lambda: clock.now_ns() > 500 * MS, 5.0)  # a zombie (not reaped yet) counts as ended
         assert time.monotonic() - t0 < 1.5
     finally:
-        proc.join(30.0)
-        if proc.is_alive():
-            proc.kill()
-            proc.join()
+        _join(proc)
     assert proc.exitcode == 3
     releases, _ = governor.releases()
     assert [(r.participant, r.reason, r.detail) for r in releases] == [
@@ -457,7 +459,7 @@ def test_a_sleeper_on_a_paused_clock_waits_for_a_change_instead_of_polling(gover
         holder.at(UNBOUNDED_NS)
         thread.join(10.0)
     assert not thread.is_alive()
-    sleeper_clock.governor.close()  # type: ignore[union-attr]
+    sleeper_clock.governor.close()
 
 
 def _change_waiter(clock: ScaledClock, conn: object, wait_s: float) -> None:
@@ -485,10 +487,7 @@ def test_a_change_wakes_a_sleeper_in_another_process(governor: ClockGovernor) ->
         waited, changed, elapsed = parent.recv()
         assert waited and changed and elapsed < 30.0
     finally:
-        proc.join(30.0)
-        if proc.is_alive():
-            proc.kill()
-            proc.join()
+        _join(proc)
     assert proc.exitcode == 0
 
 
@@ -509,7 +508,7 @@ def test_a_receiver_makes_its_logs_while_the_clock_runs_to_their_output_time() -
         made.append(time.monotonic_ns())
         return inner(*args, **kwargs)  # type: ignore[arg-type]
 
-    base.message = slow_message  # type: ignore[method-assign]
+    base.message = slow_message  # type: ignore[method-assign,assignment]
     base.start()
     try:
         assert _wait_until(lambda: len({t // 500_000_000 for t in made}) >= 3, 60.0)  # three epochs made
