@@ -301,12 +301,12 @@ class SimWorld:
         self.sync = SyncSchedule.for_truth(self.timebase, -self.lead_s + 0.5, self.duration_s, sync_period_s)
         self.truth_t0_utc_ns = gps_ns_to_unix_ns(self.timebase.truth_start_gps_ns, sim.gnss.leap_seconds)
         self._ecu_config = VscEcuConfig(seed=sim.seed, swa_offset_rad=math.radians(sim.true_swa_offset_deg))
-        self._hosts: list[_DeviceHost] = []
-        if device_process:
-            parts = (DevicePart(receivers=True, ecus=False), DevicePart(receivers=False, ecus=True))
-            self._hosts = [_DeviceHost(self, part) for part in parts
-                           if (part.receivers and self._sim_receivers) or (part.ecus and self._virtual_can)]
-        elif _part is not None:  # this world is one device process's part of the recording's world
+        self._rx_host = (_DeviceHost(self, DevicePart(receivers=True, ecus=False))
+                         if device_process and self._sim_receivers else None)
+        self._ecu_host = (_DeviceHost(self, DevicePart(receivers=False, ecus=True))
+                          if device_process and self._virtual_can else None)
+        self._hosts = [h for h in (self._rx_host, self._ecu_host) if h is not None]
+        if _part is not None and not device_process:  # this world is one device process's part of the recording's world
             self._sim_receivers = self._sim_receivers if _part.receivers else []
             self._virtual_can = self._virtual_can if _part.ecus else []
         # Computed before the clock starts, so the ECU is on time from its first frame (and past the
@@ -598,15 +598,15 @@ class SimWorld:
         """The device path of a receiver's command port (its pty for ``sim://NAME``)."""
         if not receiver.port.startswith(SIM_PREFIX):
             return receiver.port
-        if self._hosts:
-            return self._host_of(receiver).ports(receiver)[0]
+        if self._rx_host is not None:
+            return self._rx_host.ports(receiver)[0]
         rx, _ = self._receiver_for(receiver.port, f"receivers.{receiver.name}.port")
         return rx.port_path
 
     def correction_port(self, receiver: ReceiverConfig) -> str | None:
         """The device path wired to a receiver's correction port (None: use its command port)."""
-        if self._hosts:
-            return self._host_of(receiver).ports(receiver)[1]
+        if self._rx_host is not None:
+            return self._rx_host.ports(receiver)[1]
         if receiver.correction_device is not None:
             if not receiver.correction_device.startswith(SIM_PREFIX):
                 return receiver.correction_device
@@ -616,20 +616,6 @@ class SimWorld:
             rx, _ = self._receiver_for(receiver.port, f"receivers.{receiver.name}.port")
             return str(rx.port(receiver.correction_port).path)
         return None
-
-    def _host_of(self, receiver: ReceiverConfig) -> _DeviceHost:
-        """The device process that runs the simulated receivers."""
-        return self._host_running(lambda part: part.receivers, f"receivers.{receiver.name}", "receivers")
-
-    def _can_host(self) -> _DeviceHost:
-        """The device process that runs the simulated ECUs."""
-        return self._host_running(lambda part: part.ecus, "can", "ECUs")
-
-    def _host_running(self, runs: Callable[[DevicePart], bool], key: str, what: str) -> _DeviceHost:
-        for host in self._hosts:
-            if runs(host.part):
-                return host
-        raise ConfigError(f"{key}: no device process runs the simulated {what}")
 
     # --- the host's CAN adapter ------------------------------------------------------------------
 
@@ -645,8 +631,8 @@ class SimWorld:
         if config.interface == "virtual" and self.clock is not None:
             reader = participant(self.clock, can_reader_name(config.channel), progress_ns=UNBOUNDED_NS, reuse=True,
                                  value=UNBOUNDED_NS)
-        if self._hosts and config.interface == "virtual":
-            config = self._can_host().can_config(config)
+        if self._ecu_host is not None and config.interface == "virtual":
+            config = self._ecu_host.can_config(config)
         return _LinkedBus(open_bus(config), self.can_link, reader)
 
     # --- the simulated DAQ -----------------------------------------------------------------------
