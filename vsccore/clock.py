@@ -439,7 +439,7 @@ class ClockGovernor:
     def _changed(self, w: memoryview) -> None:
         """Bump the change counter and wake every sleeper on it (after the write it announces)."""
         w[_H_EPOCH] += 1
-        if self._futex_addr and _FUTEX is not None:
+        if self._futex_addr:  # set only where there is a futex
             _FUTEX(self._futex_addr, _FUTEX_WAKE, 0x7FFFFFFF, None)
 
     def change_count(self) -> int:
@@ -451,7 +451,7 @@ class ClockGovernor:
         most ``timeout_s``; True when it waited (or saw the change), False when this system has no
         futex (the caller polls instead)."""
         addr = self._futex_addr
-        if not addr or _FUTEX is None:
+        if not addr:
             return False
         if timeout_s > 0:
             sec = int(timeout_s)
