@@ -64,9 +64,12 @@ def _shares_session_fixtures(folder: Path) -> bool:
 
 
 def _scope_of(nodeid: str) -> str:
-    """The unit of work of a test under pytest-xdist: its folder under tests/ if that folder's
-    conftest holds session- or package-scoped fixtures (recorded sessions: recorded once, on one
-    worker, as in a serial run), otherwise its file (module-scoped fixtures stay on one worker)."""
+    """The unit of work of a test under pytest-xdist: the test itself if it is one of `_OWN_UNITS`, else its
+    folder under tests/ if that folder's conftest holds session- or package-scoped fixtures (recorded sessions:
+    recorded once, on one worker, as in a serial run), otherwise its file (module-scoped fixtures stay on one
+    worker)."""
+    if nodeid.split("[", 1)[0] in _OWN_UNITS:
+        return nodeid
     path = nodeid.split("::", 1)[0]
     parts = path.split("/")
     if len(parts) > 2 and parts[0] == "tests" and _shares_session_fixtures(_TESTS / parts[1]):
@@ -76,11 +79,35 @@ def _scope_of(nodeid: str) -> str:
 
 _TESTS = Path(__file__).resolve().parent
 
-_LONG_UNITS = ("tests/docs/test_guide_commands.py", "tests/test_demo.py", "tests/ppk/test_ppk_dropout.py")
-"""Units of work that take minutes though they hold few tests (each records a simulated drive, at 1-2x, in a
+_GUIDE = "tests/docs/test_guide_commands.py"
+_GUIDE_SESSION = f"{_GUIDE}::test_the_guide_session_block_records"
+
+_OWN_UNITS = (_GUIDE_SESSION, f"{_GUIDE}::test_guide_page_alone")
+"""Tests each of whose parametrizations is a unit of work of its own: the guide's recorded session (shared by
+the workers through a file lock) and the guide pages that run in copies of it, beside the pages run in order."""
+
+_LONG_UNITS = (_GUIDE_SESSION, "tests/test_demo.py", "tests/ppk/test_ppk_dropout.py")
+"""Units of work that take minutes though they hold few tests (each records a simulated drive at 8x in a
 fixture), longest first. xdist orders the units by their number of tests, which put these last, so the whole
-suite waited for them at its end (idle, 4 workers on 2 cores, 2026-12-03: the guide's fixture 238 s, the
-demo's 195 s, the PPK dropout's 155 s). They go first; the rest keeps xdist's order."""
+suite waited for them at its end (idle, 4 workers on 2 cores, 2026-12-05: the guide's session 156 s, the
+demo's 168 s, the PPK dropout's 130 s). They go first; the rest keeps xdist's order."""
+
+_WAITING_UNITS = (_GUIDE, f"{_GUIDE}::test_guide_page_alone[guide/live-and-exports.md]")
+"""Long units that use what a unit of `_LONG_UNITS` records (the guide's pages: 70-130 s idle): they come
+right after the units the workers start with, so a worker takes one when it has finished its first unit (the
+guide session's worker: as soon as it has recorded it) instead of waiting for the recording from the start,
+or taking it last and making the suite wait for it."""
+
+
+def _work_order(units: dict[str, int], workers: int) -> list[str]:
+    """The order of the units of work (``units``: unit → its number of tests) for ``workers`` workers: the long
+    units, then as many of xdist's order (most tests first) as fill the other workers, then the waiting units,
+    then the rest."""
+    front = [u for u in _LONG_UNITS if u in units]
+    waiting = [u for u in _WAITING_UNITS if u in units]
+    rest = [u for u in sorted(units, key=lambda u: -units[u]) if u not in front and u not in waiting]
+    fill = max(0, workers - len(front))
+    return front + rest[:fill] + waiting + rest[fill:]
 
 
 @pytest.hookimpl(optionalhook=True)  # a hook of pytest-xdist's: no error under `-p no:xdist`
@@ -102,10 +129,12 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | 
             if self.collection is None and self.registered_collections:
                 # the work queue is an ordered dict: a unit entered now keeps its place when the base class
                 # fills it with its tests (and only units this collection has are entered)
-                present = {_scope_of(nodeid) for nodeid in next(iter(self.registered_collections.values()))}
-                for unit in _LONG_UNITS:
-                    if unit in present:
-                        self.workqueue[unit] = {}
+                units: dict[str, int] = {}
+                for nodeid in next(iter(self.registered_collections.values())):
+                    unit = _scope_of(nodeid)
+                    units[unit] = units.get(unit, 0) + 1
+                for unit in _work_order(units, len(self.nodes)):
+                    self.workqueue[unit] = {}
             super().schedule()
 
     return FolderOrFileScheduling(config, log)

@@ -16,6 +16,7 @@ driver sends that receiver for that configuration, and the simulated receiver an
 
 from __future__ import annotations
 
+import fcntl
 import os
 import re
 import shlex
@@ -43,9 +44,9 @@ DOCS = REPO / "docs"
 GUIDE_PAGES = sorted(p for p in DOCS.rglob("*.md"))
 COMMAND_TIMEOUT_S = 1500.0
 """A hang guard per command, not a speed requirement. The session block records the demo drive (164 s of
-simulated time) at --speed 2 on a governed clock, which slows down on a busy host instead of degrading the
-figures: 221-318 s idle and 440-581 s with 6 busy processes on 2 cores, and once over 600 s (the old guard,
-which then failed the guide's whole module). The module's own pytest timeout (3000 s) stays above it."""
+simulated time) at --speed 8 on a governed clock, which slows down on a busy host instead of degrading the
+figures: 156 s with the rest of the suite on 4 workers on an idle 2-core machine, 353 s with 6 busy processes
+besides (2026-12-05); once over 600 s, the old guard. The tests' own pytest timeout (3000 s) stays above it."""
 
 _MARKER = re.compile(r"<!--\s*(?P<body>.*?)\s*-->\s*\n(?:\s*\n)*```(?P<lang>\w*)[^\n]*\n(?P<code>.*?)^```",
                      re.DOTALL | re.MULTILINE)
@@ -175,39 +176,116 @@ def _check(block: Block, spec: RunSpec, cmd: str, cwd: Path) -> None:
         assert spec.output in out, f"{block.where}: `{cmd}` did not print {spec.output!r}:\n{out[-3000:]}"
 
 
-@pytest.fixture(scope="module")
-def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """sim.toml, car.toml and sessions/day1, recorded by the guide's own session block."""
-    wd = tmp_path_factory.mktemp("guide")
+def _prepare(wd: Path) -> None:
+    """sim.toml (the shipped simulated car), car.toml (the car template) and the roles files."""
+    wd.mkdir(parents=True)
     shutil.copy(REPO / "rig" / "examples" / "sim.toml", wd / "sim.toml")
     shutil.copytree(REPO / "rig" / "examples" / "roles", wd / "roles")
     shutil.copy(REPO / "examples" / "car-template.toml", wd / "car.toml")
     shutil.copytree(REPO / "examples" / "roles", wd / "roles", dirs_exist_ok=True)
-    sessions = [b for b in runnable() if run_spec(b).session]
-    assert len(sessions) == 1, f"exactly one <!-- test: session --> block, found {[b.where for b in sessions]}"
-    block = sessions[0]
-    for cmd in block.commands():
-        _check(block, run_spec(block), cmd, wd)
-    assert sorted(p.name for p in (wd / "sessions").glob("day1.*.mcap")), "the session block recorded nothing"
+
+
+def _record_guide_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The working directory with ``sessions/day1`` recorded by the guide's own session block, once per test run.
+
+    The pages' commands run in copies of it, in more than one unit of work (tests/conftest.py), so under
+    pytest-xdist the first worker to need it records it (in the run's temporary directory, which every worker
+    of the run shares) while a file lock keeps the others waiting; a failed recording is kept as a marker, so
+    the others fail at once with its message instead of recording again."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    done, failed = shared / "guide-session", shared / "guide-session.failed"
+    with open(shared / "guide-session.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if failed.exists():
+                raise AssertionError(f"the guide's session block failed in another test: {failed.read_text()}")
+            if not done.is_dir():
+                wd = shared / "guide-session.partial"
+                shutil.rmtree(wd, ignore_errors=True)
+                _prepare(wd)
+                sessions = [b for b in runnable() if run_spec(b).session]
+                try:
+                    assert len(sessions) == 1, (
+                        f"exactly one <!-- test: session --> block, found {[b.where for b in sessions]}")
+                    block = sessions[0]
+                    for cmd in block.commands():
+                        _check(block, run_spec(block), cmd, wd)
+                    assert sorted(p.name for p in (wd / "sessions").glob("day1.*.mcap")), (
+                        "the session block recorded nothing")
+                except BaseException as exc:
+                    failed.write_text(f"{type(exc).__name__}: {exc}"[-3000:], encoding="utf-8")
+                    raise
+                wd.rename(done)
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+    return done
+
+
+def _copy_of(session: Path, wd: Path) -> Path:
+    shutil.copytree(session, wd, dirs_exist_ok=True)
     return wd
 
 
+@pytest.fixture(scope="module")
+def guide_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _record_guide_session(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def workdir(guide_session: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """sim.toml, car.toml and sessions/day1, recorded by the guide's own session block: the working directory
+    of the pages run in order, one after the other."""
+    return _copy_of(guide_session, tmp_path_factory.mktemp("guide"))
+
+
+PAGES_ALONE = ("guide/live-and-exports.md",)
+"""Pages whose commands read the recorded session but nothing another page writes: each runs in a copy of its
+own, as a unit of work of its own (tests/conftest.py), beside the pages run in order (the procedure writes the
+calibration the report's page reads)."""
+
 PAGES_WITH_COMMANDS = [p for p in GUIDE_PAGES if any(not run_spec(b).session for b in runnable([p]))]
+PAGES_IN_ORDER = [p for p in PAGES_WITH_COMMANDS if p.relative_to(DOCS).as_posix() not in PAGES_ALONE]
 
 
-@pytest.mark.timeout(3000)
-@pytest.mark.parametrize("page", PAGES_WITH_COMMANDS, ids=lambda p: p.relative_to(DOCS).as_posix())
-def test_guide_commands_run(page: Path, workdir: Path) -> None:
-    """Every runnable command of the page, in order, in the shared working directory."""
+def _run_page(page: Path, wd: Path) -> None:
+    """Every runnable command of the page, in order, in ``wd``."""
     ran = 0
     for block in runnable([page]):
         spec = run_spec(block)
         if spec.session:
             continue  # recorded by the fixture
         for cmd in block.commands():
-            _check(block, spec, cmd, workdir)
+            _check(block, spec, cmd, wd)
             ran += 1
     assert ran > 0
+
+
+@pytest.mark.timeout(3000)
+def test_the_guide_session_block_records(guide_session: Path) -> None:
+    """The session block's commands (their exit statuses and output are checked as they run) and its file. A
+    test of its own, so the recording is a unit of work of its own that starts first (tests/conftest.py)."""
+    parts = sorted((guide_session / "sessions").glob("day1.*.mcap"))
+    assert parts and all(p.stat().st_size > 1_000_000 for p in parts), parts
+
+
+def test_the_pages_run_alone_exist_and_run_commands() -> None:
+    names = {p.relative_to(DOCS).as_posix() for p in PAGES_WITH_COMMANDS}
+    assert set(PAGES_ALONE) <= names, sorted(set(PAGES_ALONE) - names)
+
+
+@pytest.mark.timeout(3000)
+@pytest.mark.parametrize("page", PAGES_IN_ORDER, ids=lambda p: p.relative_to(DOCS).as_posix())
+def test_guide_commands_run(page: Path, workdir: Path) -> None:
+    """Every runnable command of the page, in order, in the shared working directory."""
+    _run_page(page, workdir)
+
+
+@pytest.mark.timeout(3000)
+@pytest.mark.parametrize("page", [DOCS / p for p in PAGES_ALONE], ids=lambda p: p.relative_to(DOCS).as_posix())
+def test_guide_page_alone(page: Path, guide_session: Path, tmp_path: Path) -> None:
+    """Every runnable command of the page, in order, in a copy of the recorded working directory of its own."""
+    _run_page(page, _copy_of(guide_session, tmp_path / "guide"))
 
 
 # --- the NovAtel commands the guide lists --------------------------------------------------------
