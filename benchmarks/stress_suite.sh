@@ -20,7 +20,11 @@ if [ "${1:-}" = "--demo" ]; then
   done
   exit $rc
 fi
-.venv/bin/python -m pytest -q -n 4 --dist loadscope "$@"
+# the README's test command, as the README writes it (its first `.venv/bin/python -m pytest …`)
+cmd=$(grep -m1 -o '\.venv/bin/python -m pytest [^`]*' README.md)
+[ -n "$cmd" ] || { echo "stress_suite: no '.venv/bin/python -m pytest' command in README.md" >&2; exit 2; }
+echo "stress_suite: $cmd $*"
+$cmd "$@"
 rc=$?
 echo "stress_suite: README test command under 6 busy processes: exit $rc, wall $(( $(date +%s) - start )) s"
 exit $rc
