@@ -92,11 +92,11 @@ fixture), longest first. xdist orders the units by their number of tests, which 
 suite waited for them at its end (idle, 4 workers on 2 cores, 2026-12-05: the guide's session 156 s, the
 demo's 168 s, the PPK dropout's 130 s). They go first; the rest keeps xdist's order."""
 
-_WAITING_UNITS = (_GUIDE, f"{_GUIDE}::test_guide_page_alone[guide/live-and-exports.md]")
-"""Long units that use what a unit of `_LONG_UNITS` records (the guide's pages: 70-130 s idle): they come
-right after the units the workers start with, so a worker takes one when it has finished its first unit (the
-guide session's worker: as soon as it has recorded it) instead of waiting for the recording from the start,
-or taking it last and making the suite wait for it."""
+_WAITING_UNITS = (_GUIDE, f"{_GUIDE}::test_guide_page_alone")
+"""Long units (or tests whose every parametrization is one) that use what a unit of `_LONG_UNITS` records (the
+guide's pages: 70-130 s idle): they come right after the units the workers start with, so a worker takes one
+when it has finished its first unit (the guide session's worker: as soon as it has recorded it) instead of
+waiting for the recording from the start, or taking it last and making the suite wait for it."""
 
 
 def _work_order(units: dict[str, int], workers: int) -> list[str]:
@@ -104,7 +104,7 @@ def _work_order(units: dict[str, int], workers: int) -> list[str]:
     units, then as many of xdist's order (most tests first) as fill the other workers, then the waiting units,
     then the rest."""
     front = [u for u in _LONG_UNITS if u in units]
-    waiting = [u for u in _WAITING_UNITS if u in units]
+    waiting = [u for u in units if u.split("[", 1)[0] in _WAITING_UNITS]
     rest = [u for u in sorted(units, key=lambda u: -units[u]) if u not in front and u not in waiting]
     fill = max(0, workers - len(front))
     return front + rest[:fill] + waiting + rest[fill:]

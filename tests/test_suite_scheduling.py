@@ -12,14 +12,12 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def _unit_exists(unit: str) -> bool:
-    """A file or folder of tests, or a test (``file::name`` or ``file::name[param]``) defined in its file."""
+    """A file or folder of tests, or a test (``file::name``) defined in its file."""
     path, _, test = unit.partition("::")
     if not test:
-        target = ROOT / path
-        return target.is_dir() or target.is_file()
-    name, _, param = test.partition("[")
+        return (ROOT / path).exists()
     text = (ROOT / path).read_text(encoding="utf-8") if (ROOT / path).is_file() else ""
-    return re.search(rf"^def {re.escape(name)}\(", text, re.MULTILINE) is not None and param.rstrip("]") in text
+    return re.search(rf"^def {re.escape(test)}\(", text, re.MULTILINE) is not None
 
 
 def test_the_long_units_exist_and_are_units() -> None:
@@ -28,7 +26,7 @@ def test_the_long_units_exist_and_are_units() -> None:
     for unit in _LONG_UNITS + _WAITING_UNITS:
         assert _unit_exists(unit), unit
         if "::" in unit:
-            assert _scope_of(unit) == unit, unit
+            assert unit in _OWN_UNITS and _scope_of(f"{unit}[x]") == f"{unit}[x]", unit
             continue
         path = ROOT / unit
         tests = sorted(path.rglob("test_*.py")) if path.is_dir() else [path]
@@ -50,7 +48,7 @@ def test_long_units_first_then_one_per_free_worker_then_the_units_waiting_for_th
                      "tests/docs/test_guide_commands.py::test_guide_page_alone[guide/live-and-exports.md]",
                      "tests/c.py", "tests/d.py"]
     assert sorted(_work_order(units, workers=1)) == sorted(units)  # every unit, once
-    assert _work_order(units, workers=1)[2:4] == list(_WAITING_UNITS)
+    assert _work_order(units, workers=1)[2:4] == order[4:6]  # the waiting units right after the long ones
 
 
 def test_each_guide_page_run_alone_is_a_unit_of_its_own() -> None:
