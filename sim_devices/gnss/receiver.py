@@ -146,13 +146,7 @@ class _PortState:
 
 
 _UNREAD_POLL_S = 0.0002
-"""How soon a governed receiver looks again whether its reader has read what it wrote (wall seconds)."""
-_UNREAD_POLL_MAX_S = 0.002
-"""The longest look-again interval: while a write stays unread, each look doubles the interval up to this.
-A reader on a busy host may not run for tens of ms, and a receiver that looked every 0.2 ms (or, when its
-next wake-up lay past the unread write, every time the clock would have reached it: a timeout that never
-shrinks while the clock stands) took the CPU its reader waited for: ~3100 looks a second (the test
-``test_a_receiver_waiting_for_its_reader_looks_less_often_the_longer_it_waits``)."""
+"""How often a governed receiver looks whether its reader has read what it wrote (wall seconds)."""
 
 
 class SimReceiver(abc.ABC):
@@ -845,8 +839,6 @@ class SimReceiver(abc.ABC):
         me = participant(self.clock, f"gnss:{self.name}")
         self._governed = me.governed
         hold_back = me.budget_ns
-        last_unread: int | None = None  # the oldest unread write's time at the last look, and the look interval
-        poll_s = _UNREAD_POLL_S
         try:
             while not self._stop.is_set():
                 self._serve_requests()
@@ -877,12 +869,8 @@ class SimReceiver(abc.ABC):
                               UNBOUNDED_NS if unread is None else unread - hold_back))
                     if unread is not None:
                         # the clock stands still until the reader has read: look again soon (a select
-                        # timeout is the only way to see a pty's reader drain it), later the longer it waits
-                        poll_s = _UNREAD_POLL_S if unread != last_unread else min(2.0 * poll_s, _UNREAD_POLL_MAX_S)
-                        # a wake-up past the unread write is out of reach (the clock stands at the
-                        # write): the time left to it, in wall seconds, would stay the same at every look
-                        timeout = poll_s if wake is not None and wake > unread else min(timeout, poll_s)
-                    last_unread = unread
+                        # timeout is the only way to see a pty's reader drain it)
+                        timeout = min(timeout, _UNREAD_POLL_S)
                 fds = [st.pty.master_fd for st in self._ports.values() if st.pty is not None and st.pty.connected]
                 assert self._wake_r is not None
                 readable, _, _ = select.select([self._wake_r, *(fd for fd in fds if fd is not None)], [], [], timeout)
