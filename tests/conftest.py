@@ -68,7 +68,7 @@ def _scope_of(nodeid: str) -> str:
     folder under tests/ if that folder's conftest holds session- or package-scoped fixtures (recorded sessions:
     recorded once, on one worker, as in a serial run), otherwise its file (module-scoped fixtures stay on one
     worker)."""
-    if nodeid.split("[", 1)[0] in _OWN_UNITS:
+    if _without_parameters(nodeid) in _OWN_UNITS:
         return nodeid
     path = nodeid.split("::", 1)[0]
     parts = path.split("/")
@@ -77,12 +77,18 @@ def _scope_of(nodeid: str) -> str:
     return path
 
 
+def _without_parameters(nodeid: str) -> str:
+    """``file::test`` of ``file::test[param]`` (unchanged when it has no parameters)."""
+    return nodeid.split("[", 1)[0]
+
+
 _TESTS = Path(__file__).resolve().parent
 
 _GUIDE = "tests/docs/test_guide_commands.py"
 _GUIDE_SESSION = f"{_GUIDE}::test_the_guide_session_block_records"
+_GUIDE_PAGE_ALONE = f"{_GUIDE}::test_guide_page_alone"
 
-_OWN_UNITS = (_GUIDE_SESSION, f"{_GUIDE}::test_guide_page_alone")
+_OWN_UNITS = (_GUIDE_SESSION, _GUIDE_PAGE_ALONE)
 """Tests each of whose parametrizations is a unit of work of its own: the guide's recorded session (shared by
 the workers through a file lock) and the guide pages that run in copies of it, beside the pages run in order."""
 
@@ -92,7 +98,7 @@ fixture), longest first. xdist orders the units by their number of tests, which 
 suite waited for them at its end (idle, 4 workers on 2 cores, 2026-12-05: the guide's session 156 s, the
 demo's 168 s, the PPK dropout's 130 s). They go first; the rest keeps xdist's order."""
 
-_WAITING_UNITS = (_GUIDE, f"{_GUIDE}::test_guide_page_alone")
+_WAITING_UNITS = (_GUIDE, _GUIDE_PAGE_ALONE)
 """Long units (or tests whose every parametrization is one) that use what a unit of `_LONG_UNITS` records (the
 guide's pages: 70-130 s idle): they come right after the units the workers start with, so a worker takes one
 when it has finished its first unit (the guide session's worker: as soon as it has recorded it) instead of
@@ -104,7 +110,7 @@ def _work_order(units: dict[str, int], workers: int) -> list[str]:
     units, then as many of xdist's order (most tests first) as fill the other workers, then the waiting units,
     then the rest."""
     front = [u for u in _LONG_UNITS if u in units]
-    waiting = [u for u in units if u.split("[", 1)[0] in _WAITING_UNITS]
+    waiting = [u for u in units if _without_parameters(u) in _WAITING_UNITS]
     rest = [u for u in sorted(units, key=lambda u: -units[u]) if u not in front and u not in waiting]
     fill = max(0, workers - len(front))
     return front + rest[:fill] + waiting + rest[fill:]
