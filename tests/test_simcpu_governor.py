@@ -5,6 +5,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import pickle
+import platform
 import select
 import threading
 import time
@@ -460,6 +461,112 @@ def test_a_sleeper_on_a_paused_clock_waits_for_a_change_instead_of_polling(gover
         thread.join(10.0)
     assert not thread.is_alive()
     sleeper_clock.governor.close()
+
+
+def _asleep_on(gov: ClockGovernor, tid: int) -> bool:
+    """Thread ``tid`` of this process sleeps in futex(2) on the governor's change counter."""
+    from vsccore import clock as clock_module
+
+    number = clock_module._SYS_FUTEX.get(platform.machine().lower())
+    try:
+        with open(f"/proc/self/task/{tid}/syscall") as f:
+            fields = f.read().split()
+    except OSError:
+        return False
+    return len(fields) > 1 and fields[0] == str(number) and int(fields[1], 16) == gov._futex_addr
+
+
+def test_a_sleeper_on_a_paused_clock_sleeps_through_writes_that_cannot_move_it(governor: ClockGovernor) -> None:
+    """Only a write by the participant that holds the clock (or one that concerns everyone) wakes a
+    sleeper: the old governor woke every sleeper in every process at every write, and under a busy
+    host those wake-ups cost more CPU than the session's work."""
+    if governor._futex_addr == 0 or not os.path.exists(f"/proc/self/task/{threading.get_native_id()}/syscall"):
+        pytest.skip("needs Linux futex(2) and /proc/<pid>/task/<tid>/syscall")
+    clock = ScaledClock(0, 1.0, governor=governor)
+    holder = participant(clock, "slow device")
+    bystander = participant(clock, "fast device")
+    holder.at(100 * MS)
+    bystander.at(400 * MS)
+    assert _wait_until(lambda: clock.now_ns() == 105 * MS and governor.paused_now())
+    sleeper_clock = pickle.loads(pickle.dumps(clock))  # a copy, as in another device's process
+    sleeper_gov = sleeper_clock.governor
+    assert sleeper_gov is not None
+    returned = threading.Event()
+
+    def sleeper() -> None:
+        seen = sleeper_gov.change_count()
+        sleeper_clock.now_ns()  # the look that finds the clock standing, for "slow device"
+        sleeper_gov.wait_for_change(seen, 30.0)
+        returned.set()
+
+    thread = threading.Thread(target=sleeper)
+    thread.start()
+    try:
+        tid = thread.native_id
+        assert tid is not None
+        assert _wait_until(lambda: _asleep_on(sleeper_gov, tid))
+        for k in range(5):  # writes that cannot move a clock held by someone else
+            bystander.at((401 + k) * MS)
+        assert not returned.wait(0.3), "a write by a participant that does not hold the clock woke the sleeper"
+        holder.at(101 * MS)  # the holder moves: the sleeper looks again
+        assert returned.wait(10.0)
+    finally:
+        holder.idle()
+        bystander.idle()
+        thread.join(10.0)
+    assert not thread.is_alive()
+    sleeper_gov.close()
+
+
+def test_a_receiver_sleeps_while_the_clock_stands_short_of_its_next_epoch_for_another_participant(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A governed receiver whose next epoch lies past a clock that stands for someone else sleeps until
+    that participant moves. The old receiver looked again at its wall-time timeout, which a standing
+    clock never uses up: 50 µs short of the epoch at 50x, a look every microsecond for as long as the
+    clock stood (under a busy host, most of the session)."""
+    from sim_devices.gnss import receiver as receiver_module
+
+    gov = ClockGovernor.create(1 * MS)
+    if gov._futex_addr == 0:
+        gov.close()
+        pytest.skip("needs Linux futex(2)")
+    tb = SimTimeBase.from_gps_start(2400, 345600.0, leap_seconds=18)
+    clock = tb.make_clock(50.0, governor=gov)
+    base = SimBase("base", position=(48.7758, 9.1829, 300.0), timebase=tb, clock=clock)
+    holder = participant(clock, "slow device")
+    looks = 0
+
+    def counting_select(*args: object) -> object:
+        nonlocal looks
+        looks += 1
+        return select.select(*args)  # type: ignore[arg-type]
+
+    base.start()
+    try:
+        assert _wait_until(lambda: gov.paused_now() and clock.now_ns() == holder.progress_ns + 1 * MS)
+        nxt = base._next_data_time()  # (the base sleeps: the clock stands before its next epoch)
+        assert nxt is not None
+        epoch = tb.clock_ns(nxt)
+        assert epoch > clock.now_ns()
+        holder.at(epoch - 1 * MS - 50_000)  # the clock runs on to 50 µs short of the epoch and stands there
+        assert _wait_until(lambda: clock.now_ns() == epoch - 50_000 and gov.paused_now())
+        monkeypatch.setattr(receiver_module, "select", type("_Select", (), {"select": staticmethod(counting_select)}))
+        t0 = time.monotonic()
+        threading.Event().wait(0.5)
+        waited = time.monotonic() - t0
+        n = looks
+        monkeypatch.undo()
+        assert clock.now_ns() == epoch - 50_000  # still standing for "slow device"
+        # a look per 20 ms at most (its longest sleep on a standing clock); the old receiver made thousands
+        assert n <= waited / 0.02 + 10, f"{n} looks in {waited:.3f} s"
+        holder.idle()
+        assert _wait_until(lambda: base._next_data_time() != nxt, 10.0)  # the clock runs: the epoch is made
+    finally:
+        monkeypatch.undo()
+        holder.idle()
+        base.stop()
+        gov.close()
 
 
 def _change_waiter(clock: ScaledClock, conn: object, wait_s: float) -> None:

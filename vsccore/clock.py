@@ -254,7 +254,11 @@ class GovernorStats:
                 "blamed_wall_ns": dict(self.blamed_wall_ns)}
 
 
-_FUTEX_WAIT, _FUTEX_WAKE = 0, 1
+_FUTEX_WAIT_BITSET, _FUTEX_WAKE_BITSET = 9, 10
+_WAKE_ALL = 0x7FFFFFFF
+"""Futex bits of a write every sleeper must see (one that can move any participant's place)."""
+_WAKE_GLOBAL = 1 << 30
+"""The bit every sleeper waits on besides those of the participants that hold the clock."""
 _SYS_FUTEX = {"x86_64": 202, "amd64": 202, "aarch64": 98, "arm64": 98, "riscv64": 98, "i386": 240, "i686": 240,
               "armv7l": 240, "armv6l": 240, "ppc64le": 221, "s390x": 238}
 
@@ -276,14 +280,15 @@ def _futex_syscall() -> Any:
     fn.argtypes = (ctypes.c_long, ctypes.c_void_p, ctypes.c_int, ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p,
                    ctypes.c_int)
 
-    def futex(addr: int, op: int, val: int, timeout: _Timespec | None) -> int:
-        return int(fn(number, addr, op, val, ctypes.byref(timeout) if timeout is not None else None, None, 0))
+    def futex(addr: int, op: int, val: int, timeout: _Timespec | None, bits: int) -> int:
+        return int(fn(number, addr, op, val, ctypes.byref(timeout) if timeout is not None else None, None, bits))
 
     return futex
 
 
 _FUTEX = _futex_syscall()
-"""futex(addr, op, val, timeout) (a shared futex: the governor's file is mapped in several processes), or None."""
+"""futex(addr, op, val, timeout, bitset) (a shared futex: the governor's file is mapped in several processes),
+or None."""
 
 
 class ClockGovernor:
@@ -436,28 +441,45 @@ class ClockGovernor:
             self._changed(w)
             return n
 
-    def _changed(self, w: memoryview) -> None:
-        """Bump the change counter and wake every sleeper on it (after the write it announces)."""
+    def _changed(self, w: memoryview, slot: int = -1) -> None:
+        """Bump the change counter (after the write it announces) and wake the sleepers on it that the
+        write concerns: those waiting for participant ``slot`` (see :meth:`wait_for_change`), or
+        every sleeper (``slot`` -1: a write that can move anyone's place)."""
         w[_H_EPOCH] += 1
         if self._futex_addr:  # set only where there is a futex
-            _FUTEX(self._futex_addr, _FUTEX_WAKE, 0x7FFFFFFF, None)
+            _FUTEX(self._futex_addr, _FUTEX_WAKE_BITSET, 0x7FFFFFFF, None,
+                   _WAKE_ALL if slot < 0 else 1 << (slot % 30))
 
     def change_count(self) -> int:
         """The shared change counter (read it before looking at the clock; see :meth:`wait_for_change`)."""
         return int(self._w[_H_EPOCH]) if self._fd >= 0 else 0
 
     def wait_for_change(self, seen: int, timeout_s: float) -> bool:
-        """Sleep until the change counter is no longer ``seen`` (a participant wrote something), at
-        most ``timeout_s``; True when it waited (or saw the change), False when this system has no
-        futex (the caller polls instead)."""
+        """Sleep while the clock stands still: until a write that can move it (by the participant that
+        holds it or the reader that participant waits for, as this copy last looked; or a write that
+        concerns every participant), at most ``timeout_s``. Returns at once when the change counter
+        is no longer ``seen`` (read it before looking at the clock: what was written since is looked
+        at again). True when it waited (or saw a change), False when this system has no futex (the
+        caller polls instead).
+
+        Writes by the other participants bump the counter without waking the sleeper: they cannot
+        move a clock that stands for someone else (a write that changes who holds it is one by the
+        holder), and under a busy host waking every sleeper at every write costs more CPU than the
+        session's own work.
+        """
         addr = self._futex_addr
         if not addr:
             return False
         if timeout_s > 0:
-            sec = int(timeout_s)
-            ts = _Timespec(sec, int((timeout_s - sec) * 1e9))
+            _prog, who, blame = self._slow
+            bits = _WAKE_GLOBAL
+            for k in (who, blame):
+                if k >= 0:
+                    bits |= 1 << (k % 30)
+            end = time.monotonic_ns() + int(timeout_s * 1e9)  # FUTEX_WAIT_BITSET: absolute CLOCK_MONOTONIC
+            ts = _Timespec(end // 1_000_000_000, end % 1_000_000_000)
             low = seen & 0xFFFFFFFF
-            _FUTEX(addr, _FUTEX_WAIT, low - (1 << 32) if low >= 1 << 31 else low, ts)
+            _FUTEX(addr, _FUTEX_WAIT_BITSET, low - (1 << 32) if low >= 1 << 31 else low, ts, bits)
         return True
 
     def publish(self, slot: int, progress_ns: int) -> None:
@@ -465,7 +487,7 @@ class ClockGovernor:
         if self._fd >= 0:
             w = self._w
             w[_HDR + slot * _SLOT + _S_PROGRESS] = progress_ns
-            self._changed(w)
+            self._changed(w, slot)
 
     def set_thread(self, slot: int, tid: int) -> None:
         """Name the thread (native id) that does slot ``slot``'s work: its end releases the slot."""
@@ -477,7 +499,7 @@ class ClockGovernor:
         if self._fd >= 0:
             w = self._w
             w[_HDR + slot * _SLOT + _S_VALUE] = value
-            self._changed(w)
+            self._changed(w, slot)
 
     def link(self, producer: int, consumer: int) -> None:
         """Make ``consumer`` the reader of what ``producer`` sends (see :meth:`sent`)."""
@@ -501,7 +523,7 @@ class ClockGovernor:
                 w[base + _S_VALUE] = stamp_ns
             else:
                 w[base + _S_COUNT] += 1
-            self._changed(w)
+            self._changed(w, slot)
 
     def took(self, slot: int, stamp_ns: int, count: int) -> None:
         """Consumer ``slot`` has taken ``count`` frames stamped ``stamp_ns`` (and all before them)."""
@@ -510,7 +532,7 @@ class ClockGovernor:
             w = self._w
             w[base + _S_COUNT] = count  # the count first: seen early it only means fewer taken
             w[base + _S_VALUE] = stamp_ns
-            self._changed(w)
+            self._changed(w, slot)
 
     def find(self, name: str) -> int | None:
         """The slot index of participant ``name`` (None: not registered)."""

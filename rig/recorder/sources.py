@@ -177,7 +177,8 @@ class _DropWindow:
 class _Hub:
     """State shared by the recorder and its sources: channels, the wake-up event, accepting or not."""
 
-    def __init__(self, clock: Clock, host_to_log_time: Callable[[int], int], validate: bool) -> None:
+    def __init__(self, clock: Clock, host_to_log_time: Callable[[int], int], validate: bool,
+                 wake_depth: int = 1) -> None:
         self.clock = clock
         self.host_to_log_time = host_to_log_time
         self.validate = validate
@@ -185,6 +186,10 @@ class _Hub:
         self.lock = threading.Lock()
         self.wake = threading.Event()
         self.idle = False
+        self.wake_depth = wake_depth
+        """Messages a source queues before it wakes an idle writer (which otherwise looks again at
+        its idle wait): one wake-up per message costs more than the writing, and most under a busy
+        host, where messages come one by one."""
         self.accepting = False
         self.sources: tuple[Source, ...] = ()
         self.events: Source | None = None
@@ -324,7 +329,7 @@ class Source:
             ch.source = self.name
             q.append((ch, log_time_ns, publish_time_ns, data))
         self._accepted += 1
-        if hub.idle:
+        if hub.idle and (len(q) >= hub.wake_depth or 2 * len(q) >= self._maxsize):
             hub.wake.set()
         if clamp is not None:
             self._report_clamp(topic, *clamp)

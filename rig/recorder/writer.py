@@ -122,7 +122,8 @@ class RecorderOptions:
     batch: int = 256
     """Messages taken from one source per round (fairness)."""
     idle_wait_s: float = 0.05
-    """Longest wait for new messages when every queue is empty (wake-ups are immediate)."""
+    """Longest wait (host s) for new messages when every queue is empty: new messages are written then,
+    or as soon as a source has queued ``batch`` of them (a stop, drain or sync wakes the writer at once)."""
     event_queue_size: int = 10_000
     validate_json: bool = False
     """Check every JSON payload against its schema in ``put`` (tests; costs CPU)."""
@@ -305,7 +306,8 @@ class Recorder:
                 raise ValueError(f"metadata name {name!r} is reserved for the recorder")
             self._metadata[name] = dict(record)
         self._attachments = tuple(attachments)
-        self._hub = _Hub(self._clock, host_to_log_time or (lambda t: t), self._opts.validate_json)
+        self._hub = _Hub(self._clock, host_to_log_time or (lambda t: t), self._opts.validate_json,
+                         wake_depth=self._opts.batch)
         self._hub.events = Source("recorder.events", self._opts.event_queue_size, self._hub)
         self._hub.add_source(self._hub.events)
         self._thread: threading.Thread | None = None

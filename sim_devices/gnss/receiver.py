@@ -90,7 +90,7 @@ from sim_devices.gnss.error_model import GnssErrorModel, GnssErrorParams, RtkSta
 from sim_devices.gnss.pty import PtyPort
 from sim_devices.gnss.solution import Solution
 from sim_devices.gnss.timebase import SimTimeBase
-from vsccore.clock import UNBOUNDED_NS, Clock, SystemClock, participant
+from vsccore.clock import UNBOUNDED_NS, Clock, ClockGovernor, SystemClock, participant
 from vsccore.errors import DeviceError, DeviceTimeoutError, SimulationError
 from vsccore.gpstime import NS_PER_S, NS_PER_WEEK, gps_ns_to_unix_ns
 
@@ -147,6 +147,9 @@ class _PortState:
 
 _UNREAD_POLL_S = 0.0002
 """How often a governed receiver looks whether its reader has read what it wrote (wall seconds)."""
+_PAUSED_LOOK_S = 0.02
+"""Longest sleep (wall s) of a governed receiver on a clock that stands still for another participant
+before it looks at its ports and requests again (input on them waits at most this long then)."""
 
 
 class SimReceiver(abc.ABC):
@@ -838,6 +841,9 @@ class SimReceiver(abc.ABC):
         latency_ns = round(self.output_latency_s * NS_PER_S)
         me = participant(self.clock, f"gnss:{self.name}")
         self._governed = me.governed
+        gov = getattr(self.clock, "governor", None)
+        if not (me.governed and isinstance(gov, ClockGovernor)):
+            gov = None
         hold_back = me.budget_ns
         try:
             while not self._stop.is_set():
@@ -855,7 +861,9 @@ class SimReceiver(abc.ABC):
                     wake = c if wake is None else min(wake, c)
                     due = c + latency_ns if due is None else min(due, c + latency_ns)
                 timeout = 0.1 if wake is None else min(0.1, max(0.0, (wake - self.clock.now_ns()) / speed / NS_PER_S))
-                if self._governed:
+                park_until: int | None = None
+                seen = 0
+                if gov is not None:
                     # simulated time stands still at this receiver's next write until it has written (its
                     # first possible write, data time + output latency, until its logs are made), and at
                     # a write until it is read (not the budget past them): the readers' receive stamps of
@@ -871,9 +879,22 @@ class SimReceiver(abc.ABC):
                         # the clock stands still until the reader has read: look again soon (a select
                         # timeout is the only way to see a pty's reader drain it)
                         timeout = min(timeout, _UNREAD_POLL_S)
+                    elif wake is not None and timeout > 0:
+                        # a clock that stands still for another participant cannot reach this receiver's
+                        # next wake-up before a participant writes: sleep until one does (the wall-time
+                        # timeout would look again and again while the clock stands: under a busy host,
+                        # most of the session)
+                        seen = gov.change_count()  # before the look: no change is missed
+                        if self.clock.now_ns() < wake and gov.paused_now():
+                            park_until = wake
                 fds = [st.pty.master_fd for st in self._ports.values() if st.pty is not None and st.pty.connected]
                 assert self._wake_r is not None
-                readable, _, _ = select.select([self._wake_r, *(fd for fd in fds if fd is not None)], [], [], timeout)
+                watch = [self._wake_r, *(fd for fd in fds if fd is not None)]
+                readable = None
+                if gov is not None and park_until is not None:
+                    readable = self._sleep_while_paused(gov, seen, park_until, watch)
+                if readable is None:
+                    readable, _, _ = select.select(watch, [], [], timeout)
                 for fd in readable:
                     if fd == self._wake_r:
                         with contextlib.suppress(BlockingIOError):
@@ -891,6 +912,21 @@ class SimReceiver(abc.ABC):
         finally:
             me.close()
             self._serve_requests()
+
+    def _sleep_while_paused(self, gov: ClockGovernor, seen: int, wake_ns: int, watch: list[int]) -> list[int] | None:
+        """Sleep while the governed clock stands still for another participant short of ``wake_ns``:
+        until a write that can move it past, or input on ``watch`` (the ports, the wake-up pipe).
+        Returns the readable descriptors (each look is a clock reading and a select, not a round of
+        the receiver's loop); None where there is no futex to sleep on (look at the wall time)."""
+        ready: list[int] = select.select(watch, [], [], 0.0)[0]
+        while not ready:
+            if not gov.wait_for_change(seen, _PAUSED_LOOK_S):
+                return None
+            seen = gov.change_count()
+            if not (self.clock.now_ns() < wake_ns and gov.paused_now()):
+                return list(select.select(watch, [], [], 0.0)[0])
+            ready = select.select(watch, [], [], 0.0)[0]
+        return ready
 
     def _on_input(self, st: _PortState, data: bytes) -> None:
         if self.enforce_baud and st.pty is not None:
