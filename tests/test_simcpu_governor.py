@@ -620,7 +620,10 @@ def test_a_receiver_makes_its_logs_while_the_clock_runs_to_their_output_time() -
     try:
         assert _wait_until(lambda: len({t // 500_000_000 for t in made}) >= 3, 60.0)  # three epochs made
         blamed = gov.stats().blamed_wall_ns.get("gnss:base", 0)
-        assert blamed < 20 * MS, f"the clock stood still {blamed / MS:.0f} ms for the base's work"
+        work = 20 * MS * len(made)
+        # the old receiver held the clock for all of its work (blamed >= work); what is left is the host's
+        # scheduling of the receiver's thread (up to 25 ms seen under 6 busy processes on 2 cores)
+        assert blamed < work / 4, f"the clock stood still {blamed / MS:.0f} ms for {work / MS:.0f} ms of work"
     finally:
         base.stop()
         gov.close()
