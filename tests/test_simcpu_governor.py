@@ -17,6 +17,7 @@ import pytest
 from sim_devices.gnss import SimBase, SimTimeBase
 from sim_devices.vehicle import make_scenario, simulate
 from sim_devices.vsc_ecu import VscEcu
+from tests.waiting import wait_until as _wait_until
 from vsccore.clock import UNBOUNDED_NS, ClockGovernor, ReleaseReason, ScaledClock, participant
 
 MS = 1_000_000
@@ -35,16 +36,6 @@ def _join(proc: multiprocessing.process.BaseProcess) -> None:
     if proc.is_alive():
         proc.kill()
         proc.join()
-
-
-def _wait_until(pred: object, timeout_s: float = 10.0) -> bool:
-    done = threading.Event()
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if pred():  # type: ignore[operator]
-            return True
-        done.wait(0.005)
-    return False
 
 
 def test_a_participant_that_falls_behind_holds_the_clock_at_its_progress_plus_the_budget(

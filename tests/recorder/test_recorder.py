@@ -13,6 +13,7 @@ import rig.topics as T  # noqa: N812 - short alias used throughout the tests
 from rig.recorder import Attachment, Recorder, find_parts, scan_part, session_metadata
 from rig.topics import METADATA_PART_END, METADATA_RECORDER, METADATA_SESSION, Event, EventKind
 from tests.recorder.helpers import T0, GatedFile, ManualClock, limited_opener, options, read_with_mcap
+from tests.waiting import wait_until
 from vsccore import __version__
 from vsccore.errors import DiskFullError, SessionFileError
 
@@ -266,16 +267,6 @@ def test_bad_names_and_existing_files_are_refused(tmp_path: Path) -> None:
             rec.source("g")
 
 
-def _wait_for(pred: object, timeout_s: float) -> bool:
-    done = threading.Event()
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if pred():  # type: ignore[operator]
-            return True
-        done.wait(0.002)
-    return False
-
-
 def test_an_idle_writer_takes_messages_in_batches_not_one_wake_up_per_message(tmp_path: Path) -> None:
     """Messages that come one by one do not wake the writer one by one (the old writer did: ~3000
     wake-ups a second in a simulated drive, more CPU than the writing, most of all under a busy
@@ -307,10 +298,10 @@ def test_a_source_with_a_half_full_queue_wakes_the_idle_writer(tmp_path: Path) -
     rec.start()
     src = rec.source("can0", maxsize=40)
     try:
-        assert _wait_for(lambda: rec._hub.idle, 10.0)
+        assert wait_until(lambda: rec._hub.idle, 10.0)
         for i in range(20):
             assert src.put(T.gnss_raw("can0"), T0 + i, T0 + i, b"x")
-        assert _wait_for(lambda: next(s for s in rec.stats() if s.name == "can0").written == 20, 10.0)
+        assert wait_until(lambda: next(s for s in rec.stats() if s.name == "can0").written == 20, 10.0)
     finally:
         summary = rec.stop()
     assert summary.error is None
