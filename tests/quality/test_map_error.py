@@ -199,8 +199,9 @@ def test_a_governed_recording_whose_reader_was_descheduled_is_still_good(governe
     assert judged(can, "timing_error_ms").verdict is Verdict.GOOD, can.message()
     assert true_err.max() / MS <= fig
     # old code: one device-time second in ten or more was late throughout (> 5 %): its p95 read about 2 ms
-    # (1.86 ms seen under a stress load: a per-second envelope's floor moves with the host) → "degraded"
-    assert old > 1.5 and THRESHOLDS["timing_error_ms"].judge(old) is Verdict.DEGRADED
+    # (1.86 ms seen under a stress load: a per-second envelope's floor moves with the host) → "degraded", or
+    # "unusable" when the host map's own envelope adds to it (6.74 ms in one idle CI run)
+    assert old > 1.5 and THRESHOLDS["timing_error_ms"].judge(old) is not Verdict.GOOD
 
 
 def test_a_3_ms_interface_clock_step_for_20_s_is_rated_at_3_ms(governed: Path, tmp_path: Path) -> None:
