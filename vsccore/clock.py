@@ -259,6 +259,11 @@ _WAKE_ALL = 0x7FFFFFFF
 """Futex bits of a write every sleeper must see (one that can move any participant's place)."""
 _WAKE_GLOBAL = 1 << 30
 """The bit every sleeper waits on besides those of the participants that hold the clock."""
+
+
+def _wake_bit(slot: int) -> int:
+    """The futex bit of participant ``slot`` (slots 30 apart share one: a spurious wake-up at worst)."""
+    return 1 << (slot % 30)
 _SYS_FUTEX = {"x86_64": 202, "amd64": 202, "aarch64": 98, "arm64": 98, "riscv64": 98, "i386": 240, "i686": 240,
               "armv7l": 240, "armv6l": 240, "ppc64le": 221, "s390x": 238}
 
@@ -448,7 +453,7 @@ class ClockGovernor:
         w[_H_EPOCH] += 1
         if self._futex_addr:  # set only where there is a futex
             _FUTEX(self._futex_addr, _FUTEX_WAKE_BITSET, 0x7FFFFFFF, None,
-                   _WAKE_ALL if slot < 0 else 1 << (slot % 30))
+                   _WAKE_ALL if slot < 0 else _wake_bit(slot))
 
     def change_count(self) -> int:
         """The shared change counter (read it before looking at the clock; see :meth:`wait_for_change`)."""
@@ -475,7 +480,7 @@ class ClockGovernor:
             bits = _WAKE_GLOBAL
             for k in (who, blame):
                 if k >= 0:
-                    bits |= 1 << (k % 30)
+                    bits |= _wake_bit(k)
             end = time.monotonic_ns() + int(timeout_s * 1e9)  # FUTEX_WAIT_BITSET: absolute CLOCK_MONOTONIC
             ts = _Timespec(end // 1_000_000_000, end % 1_000_000_000)
             low = seen & 0xFFFFFFFF

@@ -862,7 +862,6 @@ class SimReceiver(abc.ABC):
                     due = c + latency_ns if due is None else min(due, c + latency_ns)
                 timeout = 0.1 if wake is None else min(0.1, max(0.0, (wake - self.clock.now_ns()) / speed / NS_PER_S))
                 park_until: int | None = None
-                seen = 0
                 if gov is not None:
                     # simulated time stands still at this receiver's next write until it has written (its
                     # first possible write, data time + output latency, until its logs are made), and at
@@ -884,15 +883,13 @@ class SimReceiver(abc.ABC):
                         # next wake-up before a participant writes: sleep until one does (the wall-time
                         # timeout would look again and again while the clock stands: under a busy host,
                         # most of the session)
-                        seen = gov.change_count()  # before the look: no change is missed
-                        if self.clock.now_ns() < wake and gov.paused_now():
-                            park_until = wake
+                        park_until = wake
                 fds = [st.pty.master_fd for st in self._ports.values() if st.pty is not None and st.pty.connected]
                 assert self._wake_r is not None
                 watch = [self._wake_r, *(fd for fd in fds if fd is not None)]
                 readable = None
                 if gov is not None and park_until is not None:
-                    readable = self._sleep_while_paused(gov, seen, park_until, watch)
+                    readable = self._sleep_while_paused(gov, park_until, watch)
                 if readable is None:
                     readable, _, _ = select.select(watch, [], [], timeout)
                 for fd in readable:
@@ -913,20 +910,21 @@ class SimReceiver(abc.ABC):
             me.close()
             self._serve_requests()
 
-    def _sleep_while_paused(self, gov: ClockGovernor, seen: int, wake_ns: int, watch: list[int]) -> list[int] | None:
+    def _sleep_while_paused(self, gov: ClockGovernor, wake_ns: int, watch: list[int]) -> list[int] | None:
         """Sleep while the governed clock stands still for another participant short of ``wake_ns``:
         until a write that can move it past, or input on ``watch`` (the ports, the wake-up pipe).
         Returns the readable descriptors (each look is a clock reading and a select, not a round of
-        the receiver's loop); None where there is no futex to sleep on (look at the wall time)."""
-        ready: list[int] = select.select(watch, [], [], 0.0)[0]
-        while not ready:
-            if not gov.wait_for_change(seen, _PAUSED_LOOK_S):
-                return None
-            seen = gov.change_count()
+        the receiver's loop); None when the clock did not stand or there is no futex to sleep on
+        (look at the wall time)."""
+        slept = False
+        while True:
+            seen = gov.change_count()  # before the look: no change is missed
             if not (self.clock.now_ns() < wake_ns and gov.paused_now()):
-                return list(select.select(watch, [], [], 0.0)[0])
-            ready = select.select(watch, [], [], 0.0)[0]
-        return ready
+                return select.select(watch, [], [], 0.0)[0] if slept else None
+            ready: list[int] = select.select(watch, [], [], 0.0)[0]
+            if ready or not gov.wait_for_change(seen, _PAUSED_LOOK_S):
+                return ready or None
+            slept = True
 
     def _on_input(self, st: _PortState, data: bytes) -> None:
         if self.enforce_baud and st.pty is not None:
