@@ -556,6 +556,14 @@ class RecordSession:
         """The time base's jumps (first TIME replacing the host estimate …) as ``timebase`` events."""
         steps = self.timebase.steps()
         for st in steps[self._steps_written:]:
+            if st.slew_ns:  # no jump: the live map runs slow for a while (rig.timebase.Timebase)
+                self.recorder.event(
+                    EventKind.TIMEBASE, f"time base slew {st.step_ns / 1e6:+.3f} ms over "
+                    f"{st.slew_ns / 1e6:.3f} ms: {st.reason}",
+                    log_time_ns=st.at_ns, step_ns=st.step_ns, slew_ns=st.slew_ns, host_ns=st.host_ns,
+                    reason=st.reason,
+                )
+                continue
             self.recorder.event(
                 EventKind.TIMEBASE, f"time base step {st.step_ns / 1e6:+.3f} ms: {st.reason}",
                 severity=Severity.INFO if abs(st.step_ns) < 1_000_000 else Severity.WARNING,

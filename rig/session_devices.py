@@ -243,7 +243,7 @@ class GnssDevice(Device):
         tb = s.timebase
         host = chunk.host_ns
         if chunk.data:
-            self.source.put(self.topics["raw"], tb.host_to_utc(host), host, chunk.data)
+            self.source.put(self.topics["raw"], tb.live_host_to_utc(self.topics["raw"], host), host, chunk.data)
             if self.push is not None:
                 self.push.feed(chunk.data)
         for frame in chunk.frames:
@@ -377,11 +377,13 @@ class RelayDevice(Device):
         self._reported_failure = False
 
     def _on_tap(self, host_ns: int, data: bytes) -> None:
-        self.source.put(T.TOPIC_RELAY_RAW, self.session.timebase.host_to_utc(host_ns), host_ns, data)
+        self.source.put(T.TOPIC_RELAY_RAW, self.session.timebase.live_host_to_utc(T.TOPIC_RELAY_RAW, host_ns), host_ns,
+                        data)
         self.session.board.message(self.name, host_ns)
 
     def _on_frame(self, host_ns: int, frame: CorrectionFrame) -> None:
-        self.source.put(T.TOPIC_RELAY_RAW, self.session.timebase.host_to_utc(host_ns), host_ns, frame.raw)
+        self.source.put(T.TOPIC_RELAY_RAW, self.session.timebase.live_host_to_utc(T.TOPIC_RELAY_RAW, host_ns), host_ns,
+                        frame.raw)
         self.session.board.message(self.name, host_ns)
 
     def start(self) -> None:
@@ -426,8 +428,10 @@ class CanDevice(Device):
                                  bus_factory=session.can_factory or open_bus,
                                  backoff_initial_s=session.reconnect_first_s, backoff_max_s=session.reconnect_max_s)
         self._lock = threading.Lock()
+        self._flush_lock = threading.Lock()
         self._pending: list[T.CanFrameRecord] = []
         self._pending_since = 0
+        self._pending_t = 0
         self.started = False
         self._next_try = 0.0
 
@@ -475,9 +479,15 @@ class CanDevice(Device):
         if can_flags is None:
             can_flags = _CAN_FLAGS.setdefault(flags, T.CanFlag(flags))
         rec = T.CanFrameRecord(f.device_ts_ns, f.host_ts_ns, f.arbitration_id, can_flags, f.dlc, f.data)
+        tb = s.timebase
+        if f.device_ts_ns is not None:  # every stamped frame feeds the interface clock's estimate
+            t = tb.device_to_utc(self.clock_name, f.device_ts_ns, f.host_ts_ns)
+        else:
+            t = tb.host_to_utc(f.host_ts_ns)
         with self._lock:
             if not self._pending:
                 self._pending_since = f.host_ts_ns
+                self._pending_t = t
             self._pending.append(rec)
             full = len(self._pending) >= _CAN_BLOCK_FRAMES or f.host_ts_ns - self._pending_since >= CAN_BLOCK_AGE_NS
         if full:
@@ -485,11 +495,6 @@ class CanDevice(Device):
         s.board.message(self.name, f.host_ts_ns)
         if self.decoder is None or (ff is not CanFrameFlag.NONE and ff & _NOT_DATA):
             return
-        tb = s.timebase
-        if f.device_ts_ns is not None:
-            t = tb.device_to_utc(self.clock_name, f.device_ts_ns, f.host_ts_ns)
-        else:
-            t = tb.host_to_utc(f.host_ts_ns)
         dec = self.decoder.decode(f.arbitration_id, f.data, t, f.is_extended)
         if dec.message is None or not (dec.samples or dec.flags):
             return
@@ -515,19 +520,18 @@ class CanDevice(Device):
         })
 
     def flush(self, older_than_ns: int | None = None) -> None:
-        """Put the pending frames as one block (only if the oldest is older than ``older_than_ns``)."""
-        with self._lock:
-            if not self._pending or (older_than_ns is not None and self._pending_since > older_than_ns):
-                return
-            frames, self._pending = self._pending, []
-        first = frames[0]
-        tb = self.session.timebase
-        if first.device_ts_ns is not None:
-            est = tb.clock(self.clock_name).to_ref(first.device_ts_ns)
-            t = tb.host_to_utc(est if est is not None else first.host_ts_ns)
-        else:
-            t = tb.host_to_utc(first.host_ts_ns)
-        self.source.put(self.topic_frames, t, first.host_ts_ns, T.pack_can_block(frames))
+        """Put the pending frames as one block (only if the oldest is older than ``older_than_ns``).
+
+        Called by the reader (a full block) and the session's housekeeping (an old one): taking the
+        block and putting it is one step, or a block taken later could be put first (log_time back).
+        Its log time is its first frame's live common time (monotonic: rig.timebase.Timebase).
+        """
+        with self._flush_lock:
+            with self._lock:
+                if not self._pending or (older_than_ns is not None and self._pending_since > older_than_ns):
+                    return
+                frames, self._pending, t = self._pending, [], self._pending_t
+            self.source.put(self.topic_frames, t, frames[0].host_ts_ns, T.pack_can_block(frames))
 
     def _on_event(self, ev: BusEvent) -> None:
         try:

@@ -924,6 +924,31 @@ class TimeStep:
     host_ns: int
     step_ns: int
     reason: str
+    slew_ns: int = 0
+    """0 for a step; for a slew, the device time over which the live map absorbs ``step_ns``."""
+
+
+LIVE_SLEW = 0.5
+"""How fast a device clock's live map absorbs a move back: its common time runs at 1 − this of device time."""
+_SLEW_RECORD_NS = 100_000
+"""Moves back of a live map from this size on are recorded as time-base slews (refits move it by µs)."""
+_SLEW_MAX_NS = 100_000_000
+"""A live map that moved back further is not slewed (it would run slow for twice as long): it starts
+over at the new time, and the recorder holds the channel's messages at its last log_time until it
+catches up (clamped, counted, reported: a host clock far off UTC, a device clock that reset)."""
+
+
+class _LiveMap:
+    """The last live common time given for one device clock, so that the next is never earlier."""
+
+    __slots__ = ("behind_ns", "device_ns", "lock", "utc_ns")
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.device_ns: int | None = None
+        self.utc_ns = 0
+        self.behind_ns = 0
+        """How far the last time given lies past the fit (a slew in progress)."""
 
 
 class Timebase:
@@ -944,6 +969,14 @@ class Timebase:
     :meth:`set_leap_seconds` and recorded as a :class:`TimeStep` (:meth:`steps`); the recording
     session writes each as a ``timebase`` event, and the recorder keeps every channel's ``log_time``
     monotonic across it.
+
+    A device clock's live map (:meth:`device_to_utc` with a receive time) moves whenever its fit or the
+    reference receiver's is refitted — back by milliseconds in the first seconds, while the envelopes
+    find the latency floor. It is never stepped back: for device times in order, the common time runs
+    at least at 1 − :data:`LIVE_SLEW` of the device time until the fit catches up (a slew, recorded as a
+    :class:`TimeStep` with ``slew_ns`` from 0.1 ms on), so every channel timed on it stays monotonic.
+    Host-timed channels get the same from :meth:`live_host_to_utc`. Moves back beyond 100 ms are not
+    slewed (:data:`_SLEW_MAX_NS`). The offline maps (:meth:`ClockEstimator.mapping`) are not affected.
     """
 
     def __init__(self, *, reference_receiver: str | None = None, window_s: float = 120.0, refit_s: float = 2.0,
@@ -957,6 +990,7 @@ class Timebase:
         self._reference = reference_receiver
         self.leap_seconds: int | None = None
         self._steps: list[TimeStep] = []
+        self._live: dict[str, _LiveMap] = {}
 
     def gnss_clock(self, receiver: str) -> ClockEstimator:
         with self._lock:
@@ -1034,9 +1068,43 @@ class Timebase:
         if est is None:
             est = self.clock(clock)
         if host_ns is not None:
-            return self.host_to_utc(est.add_to_ref(device_ns, host_ns))
+            return self._no_step_back(clock, device_ns, self.host_to_utc(est.add_to_ref(device_ns, host_ns)),
+                                      host_ns)
         host = est.to_ref(device_ns)
         return self.host_to_utc(host if host is not None else device_ns)
+
+    def live_host_to_utc(self, channel: str, host_ns: int) -> int:
+        """:meth:`host_to_utc` for the messages of one host-timed ``channel`` (a topic), given in host order.
+
+        The reference receiver's map is refitted as its logs come in; a refit that moves it back (µs
+        once converged) must not make the channel's time run back: it is slewed like a device clock's.
+        """
+        return self._no_step_back(channel, host_ns, self.host_to_utc(host_ns), host_ns)
+
+    def _no_step_back(self, key: str, device_ns: int, utc_ns: int, host_ns: int) -> int:
+        """``utc_ns``, or the least time not before ``key``'s last live one (see the class docstring)."""
+        live = self._live.get(key)
+        if live is None:
+            with self._lock:
+                live = self._live.setdefault(key, _LiveMap())
+        with live.lock:
+            last = live.device_ns
+            behind = 0
+            if last is not None and device_ns >= last:
+                floor = live.utc_ns + int((device_ns - last) * (1.0 - LIVE_SLEW))
+                if floor - _SLEW_MAX_NS <= utc_ns < floor:
+                    behind = floor - utc_ns
+                    moved = behind - live.behind_ns  # > 0: the map moved back since the last time
+                    if moved >= _SLEW_RECORD_NS:
+                        reason = (f"{key}: the live map moved back {moved / 1e6:.3f} ms (a refit, or a step of "
+                                  f"the time base); slewed at {1.0 - LIVE_SLEW:g}× device time so that log_time "
+                                  "stays monotonic")
+                        with self._lock:
+                            self._steps.append(TimeStep(floor, host_ns, -moved, reason,
+                                                        round(behind / LIVE_SLEW)))
+                    utc_ns = floor
+            live.device_ns, live.utc_ns, live.behind_ns = device_ns, utc_ns, behind
+        return utc_ns
 
     def host_to_gps_map(self) -> ClockMap:
         """Offline host → GPS map over the whole session (inverse of the reference receiver's map)."""

@@ -57,3 +57,69 @@ def test_marks_and_a_device_that_cannot_open(tmp_path: Path) -> None:
     errors = [e for e in events if e.source == "can.chassis" and e.severity is Severity.ERROR]
     assert errors and "cannot open" in errors[0].text
     assert any(e.kind is EventKind.CONNECT and e.source == "can.vsc" for e in events)
+
+
+class _HeldSource:
+    """A recorder source whose first put of ``/can/vsc/frames`` waits until released."""
+
+    def __init__(self) -> None:
+        self.puts: list[int] = []
+        self.first_in = threading.Event()
+        self.release = threading.Event()
+        self.second_in = threading.Event()
+        self._lock = threading.Lock()
+
+    def put(self, topic: str, log_time_ns: int, publish_ns: int, data: object) -> None:
+        if not topic.endswith("/frames"):
+            return
+        with self._lock:
+            first = not self.puts and not self.first_in.is_set()
+        if first:
+            self.first_in.set()
+            assert self.release.wait(10.0)
+        else:
+            self.second_in.set()
+        with self._lock:
+            self.puts.append(log_time_ns)
+
+
+def test_can_blocks_flushed_from_two_threads_are_put_in_order(tmp_path: Path) -> None:
+    """The housekeeping thread flushes an old block while the reader fills and flushes the next: the
+    older block must reach the recorder first (before, it could be overtaken: log_time clamped)."""
+    from drivers.can.bus import CanFrame, CanFrameFlag, TimestampSource
+
+    cfg = _config()
+    cfg = cfg.model_copy(update={"receivers": (), "relay": None, "daq": None, "simulation": None,
+                                 "can": (cfg.can[0].model_copy(update={"channel": "vsc-flush"}),)})
+    session = RecordSession(cfg, out_dir=tmp_path, name="unit")
+    session.start()
+    dev = session.can[0]
+    source = dev.source
+    held = _HeldSource()
+    dev.source = held  # type: ignore[assignment]
+    t0 = session.clock.now_ns() + 3_600_000_000_000  # an hour ahead: the session's own flushes leave them
+
+    def frame(k: int) -> CanFrame:
+        return CanFrame(None, t0 + k * 1_000_000, 0x7FF, False, False, 0, b"", CanFrameFlag.NONE,
+                        TimestampSource.HOST, "vsc-flush")
+
+    dev._on_frame(frame(0))
+    housekeeping = threading.Thread(target=dev.flush, name="housekeeping-flush")
+    housekeeping.start()
+    try:
+        assert held.first_in.wait(10.0)
+        dev._on_frame(frame(1))
+        reader = threading.Thread(target=dev.flush, name="reader-flush")
+        reader.start()
+        # the old flush put the reader's block at once, ahead of the held one; now it waits its turn
+        overtaken = held.second_in.wait(0.2)
+        held.release.set()
+        reader.join(10.0)
+        assert not reader.is_alive()
+    finally:
+        held.release.set()
+        housekeeping.join(10.0)
+        dev.source = source
+        session.stop()
+    assert not overtaken
+    assert held.puts == sorted(held.puts) and len(held.puts) == 2
