@@ -2,8 +2,9 @@
 
 Runs the demo's record, calibrate, steering-ratio, validate and rollover stages (a stage that fails
 is reported and the others still run) and prints each stage's summary, the backward ``log_time``
-steps per topic and the total wall time. Run it on an idle machine and under a CPU stress load
-(``benchmarks/stress_suite.sh --demo`` runs it three times under 6 busy processes) and compare:
+steps per topic in the file, the recorder's clamps and live verdicts, and the total wall time. Run
+it on an idle machine and under a CPU stress load (``benchmarks/stress_suite.sh --demo`` runs it
+three times under 6 busy processes) and compare:
 mounting offset error against its u95, the GNSS reference β RMS / coverage against truth, the CAN
 timing error against truth, the governed clock's paused time and effective speed.
 
@@ -63,6 +64,15 @@ def main(out: Path) -> int:
                 print(f"backward log_time: {topic}: {n} step(s), largest {largest:.3f} ms")
             if len(times) and topic.startswith(("/can/", "/gnss/", "/daq/", "/optical/")):
                 last[topic] = int(times.max())
+        for _t, ev in ds.events:  # what the recorder had to clamp, and the verdicts it gave at the end
+            if "clamped" in ev.details and ev.details.get("clamped"):
+                print("log_time clamped by the recorder: " + ", ".join(
+                    f"{topic} {n}× (largest {ms:.3f} ms)" for topic, (n, ms) in sorted(ev.details["clamped"].items())))
+            if "verdicts" in ev.details:
+                print("time-base verdicts: " + ", ".join(
+                    f"{k} {v['verdict']}" for k, v in sorted(ev.details["verdicts"].items())))
+            if ev.details.get("slew_ns"):
+                print(f"time-base slew: {ev.text}")
         if last:  # the quality gate's early end: a stream that stops before the last one
             end = max(last.values())
             print("stream ends before the last stream: " + ", ".join(
