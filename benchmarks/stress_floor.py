@@ -3,13 +3,15 @@
 The README's test command (6 pytest-xdist workers on 2 cores) must finish under 6 CPU-bound background
 processes within 2× its idle time. The kernel shares a busy machine per thread, so 6 busy workers get
 about half of it; what the ratio is beyond that depends on the host (cache, scheduler slices) and on the
-suite (work that grows with wall time). This script measures the first part alone: 60 modules of 10
-tests, each a fixed amount of Python and numpy work (no threads, no waiting, no simulated devices), run
+suite (work that grows with wall time). This script measures the first part alone: 60 modules of 20
+tests, each a fixed amount of Python and numpy work — tight loops and matrix products, and object work
+(dicts, strings, JSON, small arrays) whose working set the time slices of a busy machine keep evicting —
+with no threads, no waiting and no simulated devices, run
 with the README's pytest options idle and under the same stress load as ``stress_suite.sh``, and prints
 wall time, CPU time and the loaded/idle ratio. The suite's own ratio (``stress_suite.sh``) beyond this
 one is CPU the suite spends more under load.
 
-Usage: .venv/bin/python benchmarks/stress_floor.py [--modules 60] [--loops 2000000]
+Usage: .venv/bin/python benchmarks/stress_floor.py [--modules 60] [--loops 1000000]
 """
 
 from __future__ import annotations
@@ -23,7 +25,9 @@ import tempfile
 import time
 from pathlib import Path
 
-_TEST = '''import numpy as np
+_TEST = '''import json
+
+import numpy as np
 import pytest
 
 
@@ -37,6 +41,16 @@ def test_burn(k):
         a = a @ a.T
         a /= np.abs(a).max()
     assert s >= 0 and a.shape == (300, 300)
+
+
+@pytest.mark.parametrize("k", range(10))
+def test_objects(k):
+    # what most of the suite does: objects, dicts, strings, small arrays (a working set beyond the L1/L2)
+    rows = [{{"t": i * 1e-3, "name": f"sig{{i % 97}}", "v": [i, k, i * k]}} for i in range({loops} // 20)]
+    text = json.dumps(rows)
+    back = json.loads(text)
+    x = np.asarray([r["v"][0] for r in back], dtype=np.float64)
+    assert len(back) == len(rows) and float(np.sum(np.diff(np.sort(x)))) >= 0
 '''
 
 
@@ -56,7 +70,7 @@ def _run(folder: Path) -> tuple[float, float]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--modules", type=int, default=60)
-    ap.add_argument("--loops", type=int, default=2_000_000)
+    ap.add_argument("--loops", type=int, default=1_000_000)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="stress-floor-") as tmp:
         folder = Path(tmp)
