@@ -65,7 +65,7 @@ def main(out: Path) -> int:
             if len(times) and topic.startswith(("/can/", "/gnss/", "/daq/", "/optical/")):
                 last[topic] = int(times.max())
         for _t, ev in ds.events:  # what the recorder had to clamp, and the verdicts it gave at the end
-            if "clamped" in ev.details and ev.details.get("clamped"):
+            if ev.details.get("clamped"):
                 print("log_time clamped by the recorder: " + ", ".join(
                     f"{topic} {n}× (largest {ms:.3f} ms)" for topic, (n, ms) in sorted(ev.details["clamped"].items())))
             if "verdicts" in ev.details:

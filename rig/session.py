@@ -53,7 +53,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import can
 import pymap3d
@@ -556,18 +556,16 @@ class RecordSession:
         """The time base's jumps (first TIME replacing the host estimate …) as ``timebase`` events."""
         steps = self.timebase.steps()
         for st in steps[self._steps_written:]:
+            extra: dict[str, Any] = {}
             if st.slew_ns:  # no jump: the live map runs slow for a while (rig.timebase.Timebase)
-                self.recorder.event(
-                    EventKind.TIMEBASE, f"time base slew {st.step_ns / 1e6:+.3f} ms over "
-                    f"{st.slew_ns / 1e6:.3f} ms: {st.reason}",
-                    log_time_ns=st.at_ns, step_ns=st.step_ns, slew_ns=st.slew_ns, host_ns=st.host_ns,
-                    reason=st.reason,
-                )
-                continue
+                what, severity = f"slew {st.step_ns / 1e6:+.3f} ms over {st.slew_ns / 1e6:.3f} ms", Severity.INFO
+                extra["slew_ns"] = st.slew_ns
+            else:
+                what = f"step {st.step_ns / 1e6:+.3f} ms"
+                severity = Severity.INFO if abs(st.step_ns) < 1_000_000 else Severity.WARNING
             self.recorder.event(
-                EventKind.TIMEBASE, f"time base step {st.step_ns / 1e6:+.3f} ms: {st.reason}",
-                severity=Severity.INFO if abs(st.step_ns) < 1_000_000 else Severity.WARNING,
-                log_time_ns=st.at_ns, step_ns=st.step_ns, host_ns=st.host_ns, reason=st.reason,
+                EventKind.TIMEBASE, f"time base {what}: {st.reason}", severity=severity,
+                log_time_ns=st.at_ns, step_ns=st.step_ns, host_ns=st.host_ns, reason=st.reason, **extra,
             )
         self._steps_written = len(steps)
 

@@ -939,7 +939,8 @@ catches up (clamped, counted, reported: a host clock far off UTC, a device clock
 
 
 class _LiveMap:
-    """The last live common time given for one device clock, so that the next is never earlier."""
+    """The last live common time given for one device clock or host-timed channel, so that the next is
+    never earlier."""
 
     __slots__ = ("behind_ns", "device_ns", "lock", "utc_ns")
 
