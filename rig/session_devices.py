@@ -416,6 +416,8 @@ class CanDevice(Device):
         super().__init__(session, f"can.{cc.name}", "can", maxsize=50_000)
         self.cc = cc
         self.clock_name = f"can:{cc.name}"
+        self._host_channel = f"{self.clock_name} host stamps"
+        """The live map key of the frames without an interface stamp (``clock_name`` is the interface clock's)."""
         self.topic_frames = T.can_frames(cc.name)
         self.topic_roles = T.can_roles(cc.name)
         self.decoder: RoleDecoder | None = None
@@ -482,8 +484,8 @@ class CanDevice(Device):
         tb = s.timebase
         if f.device_ts_ns is not None:  # every stamped frame feeds the interface clock's estimate
             t = tb.device_to_utc(self.clock_name, f.device_ts_ns, f.host_ts_ns)
-        else:
-            t = tb.host_to_utc(f.host_ts_ns)
+        else:  # host receive times: the host → GPS map, which must not run back either
+            t = tb.live_host_to_utc(self._host_channel, f.host_ts_ns)
         with self._lock:
             if not self._pending:
                 self._pending_since = f.host_ts_ns

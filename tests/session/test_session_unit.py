@@ -123,3 +123,49 @@ def test_can_blocks_flushed_from_two_threads_are_put_in_order(tmp_path: Path) ->
         session.stop()
     assert not overtaken
     assert held.puts == sorted(held.puts) and len(held.puts) == 2
+
+
+class _Puts:
+    """A recorder source that keeps the log times put per topic."""
+
+    def __init__(self) -> None:
+        self.times: dict[str, list[int]] = {}
+
+    def put(self, topic: str, log_time_ns: int, publish_ns: int, data: object) -> None:
+        self.times.setdefault(topic, []).append(log_time_ns)
+
+
+def test_host_stamped_can_blocks_never_run_back_when_the_host_map_moves_back(tmp_path: Path) -> None:
+    """An interface without its own stamps (host receive time): the blocks' log time comes from the host → GPS
+    map, which a refit can move back (more than the 1 ms between these frames here); the channel must not
+    run back with it (before, the block took the plain map: back 4 ms)."""
+    from drivers.can.bus import CanFrame, CanFrameFlag, TimestampSource
+
+    cfg = _config()
+    cfg = cfg.model_copy(update={"receivers": (), "relay": None, "daq": None, "simulation": None,
+                                 "can": (cfg.can[0].model_copy(update={"channel": "vsc-host-stamped"}),)})
+    session = RecordSession(cfg, out_dir=tmp_path, name="unit")
+    session.start()
+    dev = session.can[0]
+    source = dev.source
+    puts = _Puts()
+    dev.source = puts  # type: ignore[assignment]
+    tb = session.timebase
+    shift = {"ns": 0}
+    plain = tb.host_to_utc
+    t0 = session.clock.now_ns() + 3_600_000_000_000  # an hour ahead: the session's own flushes leave them
+    try:
+        tb.host_to_utc = lambda host_ns: plain(host_ns) + shift["ns"]  # type: ignore[method-assign]
+        for k in range(4):
+            if k == 2:
+                shift["ns"] = -5_000_000  # a refit moved the map back 5 ms
+            dev._on_frame(CanFrame(None, t0 + k * 1_000_000, 0x7FF, False, False, 0, b"", CanFrameFlag.NONE,
+                                   TimestampSource.HOST, "vsc-host-stamped"))
+            dev.flush()
+    finally:
+        dev.source = source
+        del tb.host_to_utc
+        session.stop()
+    blocks = puts.times[dev.topic_frames]
+    assert len(blocks) == 4
+    assert blocks == sorted(blocks), [b - blocks[0] for b in blocks]
