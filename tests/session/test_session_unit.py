@@ -6,6 +6,7 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
+from drivers.can.bus import CanFrame, CanFrameFlag, TimestampSource
 from rig.config import CanConfig, SessionConfig, load_session
 from rig.dataset import load_session as load_recording
 from rig.demo import demo_config_path
@@ -59,6 +60,21 @@ def test_marks_and_a_device_that_cannot_open(tmp_path: Path) -> None:
     assert any(e.kind is EventKind.CONNECT and e.source == "can.vsc" for e in events)
 
 
+def _can_only_session(tmp_path: Path, channel: str) -> RecordSession:
+    """A started recording session of the demo's CAN bus alone, on virtual channel ``channel``."""
+    cfg = _config()
+    cfg = cfg.model_copy(update={"receivers": (), "relay": None, "daq": None, "simulation": None,
+                                 "can": (cfg.can[0].model_copy(update={"channel": channel}),)})
+    session = RecordSession(cfg, out_dir=tmp_path, name="unit")
+    session.start()
+    return session
+
+
+def _host_stamped_frame(host_ns: int) -> CanFrame:
+    """An empty frame as an interface without its own stamps gives it (host receive time only)."""
+    return CanFrame(None, host_ns, 0x7FF, False, False, 0, b"", CanFrameFlag.NONE, TimestampSource.HOST, "unit")
+
+
 class _HeldSource:
     """A recorder source whose first put of ``/can/vsc/frames`` waits until released."""
 
@@ -86,13 +102,7 @@ class _HeldSource:
 def test_can_blocks_flushed_from_two_threads_are_put_in_order(tmp_path: Path) -> None:
     """The housekeeping thread flushes an old block while the reader fills and flushes the next: the
     older block must reach the recorder first (before, it could be overtaken: log_time clamped)."""
-    from drivers.can.bus import CanFrame, CanFrameFlag, TimestampSource
-
-    cfg = _config()
-    cfg = cfg.model_copy(update={"receivers": (), "relay": None, "daq": None, "simulation": None,
-                                 "can": (cfg.can[0].model_copy(update={"channel": "vsc-flush"}),)})
-    session = RecordSession(cfg, out_dir=tmp_path, name="unit")
-    session.start()
+    session = _can_only_session(tmp_path, "vsc-flush")
     dev = session.can[0]
     source = dev.source
     held = _HeldSource()
@@ -100,8 +110,7 @@ def test_can_blocks_flushed_from_two_threads_are_put_in_order(tmp_path: Path) ->
     t0 = session.clock.now_ns() + 3_600_000_000_000  # an hour ahead: the session's own flushes leave them
 
     def frame(k: int) -> CanFrame:
-        return CanFrame(None, t0 + k * 1_000_000, 0x7FF, False, False, 0, b"", CanFrameFlag.NONE,
-                        TimestampSource.HOST, "vsc-flush")
+        return _host_stamped_frame(t0 + k * 1_000_000)
 
     dev._on_frame(frame(0))
     housekeeping = threading.Thread(target=dev.flush, name="housekeeping-flush")
@@ -139,13 +148,7 @@ def test_host_stamped_can_blocks_never_run_back_when_the_host_map_moves_back(tmp
     """An interface without its own stamps (host receive time): the blocks' log time comes from the host → GPS
     map, which a refit can move back (more than the 1 ms between these frames here); the channel must not
     run back with it (before, the block took the plain map: back 4 ms)."""
-    from drivers.can.bus import CanFrame, CanFrameFlag, TimestampSource
-
-    cfg = _config()
-    cfg = cfg.model_copy(update={"receivers": (), "relay": None, "daq": None, "simulation": None,
-                                 "can": (cfg.can[0].model_copy(update={"channel": "vsc-host-stamped"}),)})
-    session = RecordSession(cfg, out_dir=tmp_path, name="unit")
-    session.start()
+    session = _can_only_session(tmp_path, "vsc-host-stamped")
     dev = session.can[0]
     source = dev.source
     puts = _Puts()
@@ -159,8 +162,7 @@ def test_host_stamped_can_blocks_never_run_back_when_the_host_map_moves_back(tmp
         for k in range(4):
             if k == 2:
                 shift["ns"] = -5_000_000  # a refit moved the map back 5 ms
-            dev._on_frame(CanFrame(None, t0 + k * 1_000_000, 0x7FF, False, False, 0, b"", CanFrameFlag.NONE,
-                                   TimestampSource.HOST, "vsc-host-stamped"))
+            dev._on_frame(_host_stamped_frame(t0 + k * 1_000_000))
             dev.flush()
     finally:
         dev.source = source
