@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import can
+from can.interfaces import virtual as can_virtual
 from typer.testing import CliRunner
 
 from rig.cli.main import app
@@ -42,6 +43,12 @@ def _assert_flags_are_the_skipped_frames(out: str, skipped: int) -> None:
             flagged[name] = max(flagged.get(name, 0), int(n))
     assert set(flagged) <= {"COUNTER"}, out
     assert flagged.get("COUNTER", 0) <= skipped, f"{flagged} with {skipped} frame(s) skipped:\n{out}"
+
+
+def _receivers(channel: str) -> int:
+    """Buses open on a python-can virtual channel (its module-level registry of their receive queues)."""
+    with can_virtual.channels_lock:
+        return len(can_virtual.channels.get(channel, ()))
 
 
 def _monitor_args(channel: str) -> list[str]:
@@ -89,7 +96,14 @@ def test_frames_a_starved_ecu_skips_are_flagged_as_counter_jumps_and_nothing_els
 
     def hog() -> None:
         started.set()
-        if done.wait(0.6):  # the monitor ended early: nothing to starve
+        # The monitor's bus joins the channel only once the command has started (0.1-2 s of imports and DBC
+        # loading, longer on a busy host): frames the ECU skips before that reach no one, so the hog starts
+        # 0.4 s after the monitor listens (the ECU's bus and the monitor's: two receivers on the channel).
+        deadline = time.monotonic() + 30.0
+        while _receivers(channel) < 2:
+            if done.wait(0.01) or time.monotonic() > deadline:
+                return  # the monitor ended (or never came): nothing to starve; the test fails on it below
+        if done.wait(0.4):
             return
         old = sys.getswitchinterval()
         sys.setswitchinterval(5.0)  # no other thread gets the interpreter while this one computes

@@ -13,6 +13,18 @@ import pytest
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 
 
+def _queued_at(port: int) -> bool:
+    """Bytes wait unread in an established TCP socket of local port ``port`` (Linux's /proc/net/tcp rx_queue)."""
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with open(table) as f:
+            for line in f.readlines()[1:]:
+                fields = line.split()
+                local, state, queues = fields[1], fields[3], fields[4]
+                if int(local.rsplit(":", 1)[1], 16) == port and state == "01" and int(queues.split(":")[1], 16) > 0:
+                    return True
+    return False
+
+
 @pytest.mark.skipif(sys.platform != "linux", reason="the kernel's TCP receive stamps (SO_TIMESTAMPNS) are Linux's")
 def test_a_sent_frame_is_stamped_at_its_arrival_while_the_server_thread_is_held_up(channel: str) -> None:
     """The command thread is held in its bus's ``send`` of frame A (as a busy process holds it from the CPU or
@@ -43,6 +55,12 @@ def test_a_sent_frame_is_stamped_at_its_arrival_while_the_server_thread_is_held_
                 assert entered.wait(5.0), "the server did not take frame A"
                 before_b = time.time()
                 client.send(can.Message(arbitration_id=0x0B2, data=b"\x02\x03", is_extended_id=False))
+                # B has reached the server once its bytes wait in the server's socket (a busy host may take
+                # the loopback delivery past the client's send by milliseconds): only then let the thread go
+                deadline = time.monotonic() + 10.0
+                while not _queued_at(port) and time.monotonic() < deadline:
+                    threading.Event().wait(0.001)
+                assert _queued_at(port), "frame B never reached the server's socket"
                 let_go = time.time()
             finally:
                 release.set()
