@@ -827,6 +827,7 @@ def predict_ltr(
     exogenous: LtrExogenous | None = None,
     max_input_order: int = 3,
     confirm_s: float = CONFIRM_S,
+    tail_s: float | None = None,
 ) -> LtrPrediction:
     """Predict the LTR ``horizons_s`` ahead: AR, ARX or physics-informed (module docstring).
 
@@ -836,6 +837,10 @@ def predict_ltr(
     physics-informed predictor (the window and order settings do not apply). ``refit_every_s``:
     default 0.25 s for AR, every epoch for ARX (its fit is cheap and the input changes fast).
     ``confirm_s``: a warning is raised only once its condition has held this long (:func:`confirmed`).
+    ``tail_s`` (AR model only): predict the epochs of the record's last ``tail_s`` only, the others
+    NaN, with the fits the whole record would use at those epochs (so the same values); the warnings
+    hold from ``confirm_s`` into the tail. A live display that shows the newest prediction passes
+    ``confirm_s`` and computes a few epochs instead of the whole window.
 
     Raises:
         AnalysisError: malformed arrays, a record shorter than the window, or bad settings.
@@ -850,6 +855,10 @@ def predict_ltr(
         raise AnalysisError("predict_ltr: rate_hz, window_s, refit_every_s must be positive and max_order ≥ 1")
     if engine not in ("numpy", "statsmodels"):
         raise AnalysisError(f"predict_ltr: engine must be 'numpy' or 'statsmodels', got {engine!r}")
+    if tail_s is not None and not (math.isfinite(tail_s) and tail_s >= 0.0):
+        raise AnalysisError(f"predict_ltr: tail_s must be a finite number ≥ 0 s, got {tail_s!r}")
+    if tail_s is not None and exogenous is not None:
+        raise AnalysisError("predict_ltr: tail_s applies to the AR model only (no exogenous inputs)")
     hs = tuple(float(h) for h in horizons_s)
     if not hs or min(hs) <= 0.0:
         raise AnalysisError(f"predict_ltr: horizons must be positive, got {hs}")
@@ -879,10 +888,14 @@ def predict_ltr(
     else:
         in_order = None
         coef, p = np.zeros(0), 0
-        for k in range(k0, t.size):
+        first = k0 if tail_s is None else max(k0, int(np.searchsorted(t, t[-1] - tail_s - 1e-9 * dt)))
+        fitted = -1  # the epoch of the fit in use
+        for k in range(first, t.size):
             window = x[max(0, k - w + 1) : k + 1]  # grows to the full window at the start of the record
-            if (k - k0) % refit == 0:
-                coef, p = _fit(window, max_order, engine)
+            kf = k - (k - k0) % refit  # the fit epoch of k: every refit epochs from k0
+            if kf != fitted:
+                coef, p = _fit(x[max(0, kf - w + 1) : kf + 1], max_order, engine)
+                fitted = kf
             path = _forecast(coef, window, n_ahead)
             pred[k] = np.clip(path[[s - 1 for s in steps]], -1.0, 1.0)
             order[k] = p

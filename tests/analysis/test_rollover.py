@@ -128,3 +128,26 @@ def test_warning_fires_at_the_threshold(rollover_drive: GroundTruth) -> None:
     assert predict_ltr(tr.t, ltr).first_warning_s() is None  # 0.9 is never reached nor predicted here
     with pytest.raises(AnalysisError, match="shorter than"):
         predict_ltr(tr.t[:50], ltr[:50])  # 0.5 s
+
+
+def test_tail_prediction_is_the_whole_records_tail(rollover_drive: GroundTruth) -> None:
+    """``tail_s`` predicts the last epochs only, with the fits the whole record uses there: the same values,
+    NaN before, and the newest warning the same, at every end of the record (through the warning's onset)."""
+    tr = rollover_drive
+    ltr = _ltr(tr)
+    full = predict_ltr(tr.t, ltr, threshold=0.6)
+    first = full.first_warning_s()
+    assert first is not None
+    checked = 0
+    for end_s in np.arange(2.0, tr.t[-1], 0.05):
+        n = int(np.searchsorted(tr.t, end_s)) + 1
+        whole = predict_ltr(tr.t[:n], ltr[:n], threshold=0.6)
+        tail = predict_ltr(tr.t[:n], ltr[:n], threshold=0.6, tail_s=CONFIRM_S)
+        inside = whole.t >= whole.t[-1] - CONFIRM_S - 1e-9
+        assert np.array_equal(tail.predicted[inside], whole.predicted[inside])
+        assert np.all(np.isnan(tail.predicted[~inside]))
+        assert tail.warning[-1] == whole.warning[-1]
+        checked += int(whole.warning[-1])
+    assert checked > 0  # ends inside the warning were among them
+    with pytest.raises(AnalysisError, match="tail_s"):
+        predict_ltr(tr.t, ltr, tail_s=-1.0)
