@@ -114,8 +114,13 @@ def test_log_option_forms() -> None:
 
 
 def test_plain_lines_show_the_rovers_solution_and_rates(rover: SimRover, truth: GroundTruth) -> None:
+    lost_before = sum(rover.bytes_lost().values())
     result = runner.invoke(app, ["gnss", "monitor", rover.port_path, "--duration", "2.5", "--interval", "0.5"])
     assert result.exit_code == 0, result.output
+    # Bytes the port could not take while the monitor had it open: its reader fell a whole pty buffer behind
+    # (a busy host). The write that filled the buffer left a frame's head in it, which the monitor rejects (a
+    # 1-2 byte head as garbage, a longer one also as a CRC failure). Without a loss the strict checks hold.
+    lost = sum(rover.bytes_lost().values()) - lost_before
     lines = _parse(result.output)
     assert len(lines) >= 4
     *running, final = lines
@@ -127,9 +132,12 @@ def test_plain_lines_show_the_rovers_solution_and_rates(rover: SimRover, truth: 
         assert int(line["svs"]) >= 5 and 4 <= int(line["used"]) <= int(line["svs"])
         assert line["diff"].strip() == "none"
         # Nothing fails its CRC; at most the tail of a frame is rejected when the rover already
-        # streamed before the monitor opened the port, and nothing after that.
-        assert line["crc"] == "0" and line["rejected"] == lines[0]["rejected"] and int(line["rejected"]) < 200
-        assert "last error none" in line["rest"]
+        # streamed before the monitor opened the port, and nothing after that, unless bytes were lost.
+        if lost == 0:
+            assert line["crc"] == "0" and line["rejected"] == lines[0]["rejected"], (line, lost)
+            assert "last error none" in line["rest"]
+        # each loss leaves at most one frame's head (< 200 B) and loses a byte at least
+        assert int(line["rejected"]) < 200 * (1 + lost), (line, lost)
         _check_against_truth(line, truth)
     # Rates: the 20 Hz BESTPOS/BESTVEL and 1 Hz TIME the monitor requested.
     rates = _rates(final["rates"])
