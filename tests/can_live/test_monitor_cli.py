@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 from rig.cli.main import app
 from sim_devices.vsc_ecu import VscEcu, vsc_sim_dbc_path
 from tests.can_live.truth_builders import steady_circle
+from tests.waiting import wait_until
 from vsccore.clock import SystemClock
 
 REPO = Path(__file__).resolve().parents[2]
@@ -99,10 +100,8 @@ def test_frames_a_starved_ecu_skips_are_flagged_as_counter_jumps_and_nothing_els
         # The monitor's bus joins the channel only once the command has started (0.1-2 s of imports and DBC
         # loading, longer on a busy host): frames the ECU skips before that reach no one, so the hog starts
         # 0.4 s after the monitor listens (the ECU's bus and the monitor's: two receivers on the channel).
-        deadline = time.monotonic() + 30.0
-        while _receivers(channel) < 2:
-            if done.wait(0.01) or time.monotonic() > deadline:
-                return  # the monitor ended (or never came): nothing to starve; the test fails on it below
+        if not wait_until(lambda: _receivers(channel) >= 2 or done.is_set(), 30.0) or done.is_set():
+            return  # the monitor ended (or never came): nothing to starve; the test fails on it below
         if done.wait(0.4):
             return
         old = sys.getswitchinterval()

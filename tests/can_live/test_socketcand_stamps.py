@@ -11,6 +11,7 @@ import can
 import pytest
 
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
+from tests.waiting import wait_until
 
 
 def _queued_at(port: int) -> bool:
@@ -57,10 +58,7 @@ def test_a_sent_frame_is_stamped_at_its_arrival_while_the_server_thread_is_held_
                 client.send(can.Message(arbitration_id=0x0B2, data=b"\x02\x03", is_extended_id=False))
                 # B has reached the server once its bytes wait in the server's socket (a busy host may take
                 # the loopback delivery past the client's send by milliseconds): only then let the thread go
-                deadline = time.monotonic() + 10.0
-                while not _queued_at(port) and time.monotonic() < deadline:
-                    threading.Event().wait(0.001)
-                assert _queued_at(port), "frame B never reached the server's socket"
+                assert wait_until(lambda: _queued_at(port), every_s=0.001), "frame B never reached the server's socket"
                 let_go = time.time()
             finally:
                 release.set()
