@@ -871,7 +871,7 @@ class LiveLtr:
         self._samples: deque[tuple[int, float]] = deque()
         self._model: Any = None
         self._failed = False
-        self._last: tuple[int, int, dict[str, float | bool]] | None = None  # (newest stamp, samples, figures)
+        self._last: tuple[tuple[int, int], dict[str, float | bool]] | None = None  # ((newest stamp, samples), figures)
 
     def add(self, t_ns: int, ay_body: float) -> None:
         with self._lock:
@@ -886,17 +886,19 @@ class LiveLtr:
         in wall time; a slowed or paused simulated clock brings none), and only the newest epochs' AR
         prediction (``predict_ltr``'s ``tail_s``: the same figures for a fraction of the fits)."""
         with self._lock:
+            if len(self._samples) < 2 or self._failed:
+                return {}
+            key = (self._samples[-1][0], len(self._samples))
+            if self._last is not None and self._last[0] == key:
+                return dict(self._last[1])
             data = list(self._samples)
-        if len(data) < 2 or self._failed:
-            return {}
-        last = self._last
-        if last is not None and last[:2] == (data[-1][0], len(data)):
-            return dict(last[2])
         figures = self._compute(data)
-        self._last = (data[-1][0], len(data), figures)
+        self._last = (key, figures)
         return dict(figures)
 
-    def _compute(self, data: list[tuple[int, float]]) -> dict[str, float | bool]:
+    def _compute(self, data: list[tuple[int, float]], *, whole_window: bool = False) -> dict[str, float | bool]:
+        """The figures of ``data``; ``whole_window``: the AR prediction over the whole window, not only its
+        newest epochs (the same figures, for checking)."""
         from rig.analysis.rollover import CONFIRM_S, RollModel, horizontal_ay, ltr_from_lateral, predict_ltr
 
         v = self._vehicle
@@ -914,7 +916,7 @@ class LiveLtr:
             ltr = ltr_from_lateral(horizontal_ay(ay, roll), roll, cg_height_m=v.cg_height_m,
                                    roll_axis_height_m=v.roll_axis_height_m, track_m=track)
             recent = grid >= grid[-1] - 3.5
-            pred = predict_ltr(grid[recent], ltr[recent], window_s=3.0, tail_s=CONFIRM_S)
+            pred = predict_ltr(grid[recent], ltr[recent], window_s=3.0, tail_s=None if whole_window else CONFIRM_S)
         except (AnalysisError, ValueError, np.linalg.LinAlgError) as exc:
             self._failed = True  # a model the profile cannot give: no live LTR rather than noise
             log.warning("live LTR switched off: %s", exc)
