@@ -26,13 +26,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from _cpu import children_cpu_s
 
 REPO = Path(__file__).resolve().parents[1]
 TARGET_S = 30.0
@@ -80,7 +81,7 @@ def main() -> None:
     for fmt in args.formats.split(","):
         out = Path(tempfile.mkdtemp(prefix=f"bench_export_{fmt}_"))
         try:
-            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            before = children_cpu_s()
             load0 = os.getloadavg()[0]
             t0 = time.perf_counter()
             res = subprocess.run([sys.executable, "-c", _CHILD, fmt, str(base), str(out)], cwd=REPO,
@@ -91,8 +92,7 @@ def main() -> None:
             last = res.stdout.splitlines()[-1].split()  # asammdf prints too
             rows, nbytes, nfiles, updates = (int(x) for x in last[:4])
             reached = float(last[4])
-            after = resource.getrusage(resource.RUSAGE_CHILDREN)
-            cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+            cpu = children_cpu_s() - before
             rss_mb = int(last[5]) / 1024.0  # Linux: kB
             verdict = "OK" if wall <= TARGET_S and rss_mb <= TARGET_RSS_MB else "OVER TARGET"
             print(f"{fmt:<12} {wall:7.1f} s wall  {cpu:7.1f} s CPU  peak RSS {rss_mb:7.0f} MB  {rows} rows  "

@@ -30,12 +30,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from _cpu import children_cpu_s
 
 ROOT = Path(__file__).resolve().parents[1]
 HELP_GOAL_S = 0.3
@@ -69,11 +70,6 @@ def _session(cache: Path, chunk_size: int) -> Path:
     return files[0]
 
 
-def _cpu_s() -> float:
-    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return ru.ru_utime + ru.ru_stime
-
-
 def _time(argv: list[str], runs: int, env: dict[str, str], cwd: Path = ROOT) -> tuple[float, float, float]:
     """(median wall, best wall, median CPU time user+sys) of ``runs`` fresh processes.
 
@@ -84,11 +80,11 @@ def _time(argv: list[str], runs: int, env: dict[str, str], cwd: Path = ROOT) -> 
     times = []
     cpu = []
     for _ in range(runs):
-        c0 = _cpu_s()
+        c0 = children_cpu_s()
         t0 = time.perf_counter()
         proc = subprocess.run(argv, capture_output=True, env=env, cwd=cwd, check=False)
         times.append(time.perf_counter() - t0)
-        cpu.append(_cpu_s() - c0)
+        cpu.append(children_cpu_s() - c0)
         if proc.returncode != 0:
             raise SystemExit(f"{' '.join(argv)} failed ({proc.returncode}): {proc.stderr.decode()[-500:]}")
     return statistics.median(times), min(times), statistics.median(cpu)

@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from _cpu import children_cpu_s
 
 _TEST = '''import json
 
@@ -56,15 +57,14 @@ def test_objects(k):
 
 def _run(folder: Path) -> tuple[float, float]:
     """Wall and CPU seconds (children: pytest and its workers) of one run of the dummy suite."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    before = children_cpu_s()
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", "6", "--dist", "loadscope",
                            "-p", "no:cacheprovider"], cwd=folder, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
         raise SystemExit(f"dummy suite failed:\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}")
-    return wall, (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    return wall, children_cpu_s() - before
 
 
 def main() -> int:

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import time
 from collections import defaultdict
 from collections.abc import Generator
@@ -28,6 +27,7 @@ from pathlib import Path
 from typing import IO
 
 import pytest
+from _cpu import children_cpu_s
 
 _out: IO[str] | None = None
 
@@ -45,10 +45,9 @@ def _file() -> IO[str]:
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Generator[None, None, None]:
     w0, c0 = time.perf_counter(), time.process_time()
-    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    ch0 = children_cpu_s()
     yield
-    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    children = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
+    children = children_cpu_s() - ch0
     _file().write(f"{item.nodeid}\t{w0:.3f}\t{time.perf_counter() - w0:.4f}\t{time.process_time() - c0:.4f}"
                   f"\t{children:.4f}\n")
 
