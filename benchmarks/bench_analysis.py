@@ -34,8 +34,8 @@ from rig.analysis.reference import (
     resample_mean,
 )
 from rig.analysis.rollover import horizontal_ay, ltr_from_lateral, predict_ltr
+from rig.analysis.scoring import validate_estimate
 from rig.analysis.steering import SteeringModel, reconstruct_steering
-from rig.analysis.validate import validate_estimate
 from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, make_scenario, simulate
 
 T = TypeVar("T")

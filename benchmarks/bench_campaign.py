@@ -22,7 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.campaign.synth and its estimators
 
-from rig.campaign import CampaignOptions, find_sessions, run_campaign
+from rig.workflows.campaign import CampaignOptions, find_sessions, run_campaign
 from tests.campaign.synth import make_session
 
 
@@ -58,7 +58,7 @@ def main() -> None:
     with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=None,
                       silence_logs=logging.ERROR) as cluster:
         with Client(cluster) as client:
-            client.run(lambda: __import__("rig.validate"))  # what every worker pays once
+            client.run(lambda: __import__("rig.evaluate.validate"))  # what every worker pays once
         startup = time.perf_counter() - t0
         r = run_campaign(sessions, out / "dist", opts, scheduler=cluster.scheduler_address, report=False)
         total = startup + r.elapsed_s

@@ -20,10 +20,10 @@ from pathlib import Path
 
 
 def main(out: Path) -> int:
-    from rig import demo as D  # noqa: N812 - the demo's stage functions
-    from rig.config import load_session
-    from rig.dataset import load_session as load_recording
-    from rig.quality import backward_steps
+    from rig.core.config import load_session
+    from rig.core.quality import backward_steps
+    from rig.data import load_session as load_recording
+    from rig.workflows import demo as D  # noqa: N812 - the demo's stage functions
     from sim_devices.vehicle import VehicleParams, simulate
 
     t_all = time.perf_counter()

@@ -3,7 +3,7 @@
 ``mat`` is MAT v7.3 (HDF5, streamed), ``mat5`` MAT v5 through scipy.io (each group held in memory), both
 without the sideslip struct (``validation=False``); ``mat+sideslip`` is MAT v7.3 as ``rig export --format mat``
 runs it by default, with the ``sideslip`` struct (reference, estimate and error on one time vector): read with
-``rig.sessiondata.load_inputs(bounded_memory=True)`` (the GNSS logs, and the three CAN roles it needs decoded a
+``rig.data.inputs.load_inputs(bounded_memory=True)`` (the GNSS logs, and the three CAN roles it needs decoded a
 batch of blocks at a time) and computed without the rest of ``rig validate``. Issue 17's ≤ 1 GB applies to it
 too. (Before, through ``load_inputs`` + ``validate_session``: 3.3 GB peak on the one-hour session, 1.8 GB of it
 reading the whole session, 1.5 GB more in the steering reconstruction.)

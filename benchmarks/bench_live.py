@@ -36,8 +36,8 @@ def run(drive: str, speed: float, clients: int, live: bool, token: str | None = 
     from drivers.relay.endpoints import Secret
     from rig.live import LIVE_TOPICS, LiveOptions, LiveView
     from rig.live.layout import message_paths, session_layout
-    from rig.session import RecordSession
-    from rig.simworld import record_simulated
+    from rig.record.recording import Recording
+    from rig.sim.world import record_simulated
     from tests.live.wsclient import collect
     from tests.session.recording import FAST_RTK, config
 
@@ -55,7 +55,7 @@ def run(drive: str, speed: float, clients: int, live: bool, token: str | None = 
         got = collect(url, topics, counts=dict.fromkeys(topics, 10 ** 9), timeout_s=600.0, stop=done)
         received.append(sum(len(v) for v in got.messages.values()))
 
-    def started(s: RecordSession) -> None:
+    def started(s: Recording) -> None:
         if view is not None:
             view.attach(s)
             for i in range(clients):

@@ -5,7 +5,7 @@
 2. Realistic mix (2 receivers × 20 Hz BESTPOS/BESTVEL/raw, CAN 10 IDs × 1 kHz = 10 000 frames/s in
    10 ms blocks, DAQ 8 channels × 1 kHz in 100 ms blocks): ``--seconds`` of session data generated
    ahead, then pushed as fast as the writer takes it; the ratio to real time is the headroom.
-3. Reading that session back with rig.dataset (GNSS tables, CAN frames with their time mapping,
+3. Reading that session back with rig.data (GNSS tables, CAN frames with their time mapping,
    DAQ channels).
 """
 
@@ -22,9 +22,9 @@ import numpy as np
 from mcap.writer import CompressionType, IndexType
 from mcap.writer import Writer as McapWriter
 
-import rig.topics as T  # noqa: N812 - short alias
-from rig.dataset import load_session
-from rig.recorder import Recorder, RecorderOptions, Source
+import rig.core.topics as T  # noqa: N812 - short alias
+from rig.data import load_session
+from rig.store import Recorder, RecorderOptions, Source
 
 LEAP = 18
 G0 = 1_450_000_000_000_000_000

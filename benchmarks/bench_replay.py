@@ -1,7 +1,7 @@
 """Timing of ``rig replay`` at 1x on this machine, as a receiving recorder sees it, and where the error comes from.
 
 A short simulated session is recorded (the shipped simulated car, a step steer; or ``--session PATH``), then
-its CAN frames are replayed at ``--speed`` by :class:`rig.replay.Replayer` and received by the rig's live
+its CAN frames are replayed at ``--speed`` by :class:`rig.replay.player.Replayer` and received by the rig's live
 reader (:class:`drivers.can.bus.CanBusSession`) in three set-ups:
 
 - ``virtual/in``: a python-can virtual bus, the reader in the player's process (the bus stamps each frame
@@ -29,7 +29,7 @@ average before it (the figures measure the host's scheduling as much as the play
 ``--stress N`` runs N busy processes (pure-Python loops) during the runs, for the figures under load. The
 closing lines sum the runs per set-up: runs with every recorded frame within 1 ms, frames over 1 ms.
 
-``--slice-us`` asks for a shorter scheduler time slice for the player thread (:class:`rig.replay.Replayer`'s
+``--slice-us`` asks for a shorter scheduler time slice for the player thread (:class:`rig.replay.player.Replayer`'s
 ``slice_s``). ``--rt-priority`` puts the player thread on SCHED_FIFO at that priority (``rt_priority``; 0:
 ordinary scheduling; needs root or CAP_SYS_NICE). Variants (spin, slice, priority) run interleaved,
 ``--repeat`` rounds.
@@ -58,8 +58,8 @@ import can
 import numpy as np
 
 from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusSession, CanFrame, open_bus
-from rig.dataset import load_session
-from rig.replay import Replayer, ReplayPlan, ReplayStats, build_plan, parse_bus_spec, realtime_priority
+from rig.data import load_session
+from rig.replay.player import Replayer, ReplayPlan, ReplayStats, build_plan, parse_bus_spec, realtime_priority
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from vsccore.clock import ScaledClock, SystemClock
 
@@ -67,9 +67,9 @@ MS = 1_000_000
 
 
 def record_source(out: Path) -> Path:
-    from rig.config import load_session as load_config
-    from rig.demo import demo_config_path
-    from rig.simworld import record_simulated
+    from rig.core.config import load_session as load_config
+    from rig.sim.world import record_simulated
+    from rig.workflows.demo import demo_config_path
     from sim_devices.gnss import RtkParams
     from sim_devices.vehicle.scenarios import make_scenario
 

@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 import pymap3d
 
-from rig.config import load_session
-from rig.dataset import align
-from rig.dataset import load_session as load_recording
-from rig.demo import demo_config_path
-from rig.simworld import gnss_min_latency_s, record_simulated, timing_vs_truth
+from rig.core.config import load_session
+from rig.data import align
+from rig.data import load_session as load_recording
+from rig.sim.world import gnss_min_latency_s, record_simulated, timing_vs_truth
+from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle.geodesy import point_geodetic
 

@@ -14,8 +14,8 @@ The session is built once, synthetically, with the real Recorder and cached (def
 - the session configuration, vehicle profile, DBC and role map as metadata and attachments.
 
 Timed (``time.perf_counter`` and process CPU time, BLAS limited to one thread, the process pinned
-to one CPU when possible): reading the session into arrays (:func:`rig.sessiondata.load_inputs`),
-validating (:func:`rig.validate.validate_session`, RTS reference), and writing the HTML report.
+to one CPU when possible): reading the session into arrays (:func:`rig.data.inputs.load_inputs`),
+validating (:func:`rig.evaluate.validate.validate_session`, RTS reference), and writing the HTML report.
 
 Run: ``/work/venv/bin/python benchmarks/bench_validate.py [--minutes 60] [--cache DIR] [--rebuild]``
 """
@@ -39,10 +39,10 @@ import numpy as np  # noqa: E402
 import pymap3d  # noqa: E402
 from scipy.signal import lfilter  # noqa: E402
 
-import rig.topics as T  # noqa: E402, N812
-from rig.config import load_session as load_config  # noqa: E402
-from rig.demo import demo_config_path  # noqa: E402
-from rig.recorder import Attachment, Recorder, RecorderOptions, session_metadata  # noqa: E402
+import rig.core.topics as T  # noqa: E402, N812
+from rig.core.config import load_session as load_config  # noqa: E402
+from rig.store import Attachment, Recorder, RecorderOptions, session_metadata  # noqa: E402
+from rig.workflows.demo import demo_config_path  # noqa: E402
 from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, make_scenario, simulate  # noqa: E402
 from sim_devices.vsc_ecu import frames, vsc_sim_dbc_path  # noqa: E402
 from vsccore.gpstime import gps_ns_to_unix_ns, gps_to_ns  # noqa: E402
@@ -263,8 +263,8 @@ def main() -> None:
         with contextlib.suppress(OSError):
             os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 
-    from rig.sessiondata import load_inputs
-    from rig.validate import validate_session
+    from rig.data.inputs import load_inputs
+    from rig.evaluate.validate import validate_session
 
     def timed(label: str, fn):  # type: ignore[no-untyped-def]
         w0, c0 = time.perf_counter(), time.process_time()
@@ -290,7 +290,7 @@ def main() -> None:
         print(f"    {name:<30} {dt:7.2f} s")
     total = t_read + t_val
     if args.report:
-        from rig.report import write_validation_report
+        from rig.evaluate.report import write_validation_report
 
         _files, t_rep = timed("report (HTML + plots)", lambda: write_validation_report(sv, cache / "report"))
         total += t_rep

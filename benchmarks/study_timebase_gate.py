@@ -1,6 +1,6 @@
 """How far the time-base quality gate's figures are from the truth, on recorded simulated sessions.
 
-Issue 15's gate (:mod:`rig.quality`) rates each stream by an upper bound of its timing error. This
+Issue 15's gate (:mod:`rig.core.quality`) rates each stream by an upper bound of its timing error. This
 script records three simulated sessions through the real ``rig record`` path and sets every gate
 figure beside the simulator's truth (the simulated host clock is true UTC, the simulated ECU stamps
 each CAN frame with its true transmit time, the simulated DAQ's sample clock is in the ``sim`` event):
@@ -17,9 +17,9 @@ For every session and stream it prints:
 - ``old``: the figure of the previous statistic (:meth:`ClockEstimator.envelope_error_ns`: the 95th
   percentile, per second, of the lowest pair's height above the map);
 - ``floor``: the figure of H21 (:meth:`ClockEstimator.map_error_ns`: the highest the latency floor held
-  above the map for 5 s on end, plus :data:`rig.quality.FLOOR_ALLOWANCE_MS`);
+  above the map for 5 s on end, plus :data:`rig.core.quality.FLOOR_ALLOWANCE_MS`);
 - ``new``: the figure the gate now uses: ``floor`` plus the DAQ's causality bound of the host map
-  (:func:`rig.quality.daq_causality_ns`: how much earlier than their sync-timed last samples the map puts
+  (:func:`rig.core.quality.daq_causality_ns`: how much earlier than their sync-timed last samples the map puts
   the DAQ blocks' arrivals, held in three half-seconds of 10 s), printed on its own line beside the host
   map's true error (its median: the constant offset it is meant to see);
 - ``truth``: max and 95th percentile of |time on the common base − true time| over the frames
@@ -42,14 +42,14 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.config import SessionConfig
-from rig.config import load_session as load_config
-from rig.dataset import Session, load_session
-from rig.demo import demo_config_path
-from rig.quality import FLOOR_ALLOWANCE_MS, daq_causality_ns, session_verdicts
-from rig.session import RecordSession
-from rig.simworld import SimWorld, record_simulated, timing_vs_truth
-from rig.timebase import ClockEstimator
+from rig.core.config import SessionConfig
+from rig.core.config import load_session as load_config
+from rig.core.quality import FLOOR_ALLOWANCE_MS, daq_causality_ns, session_verdicts
+from rig.core.timebase import ClockEstimator
+from rig.data import Session, load_session
+from rig.record.recording import Recording
+from rig.sim.world import SimWorld, record_simulated, timing_vs_truth
+from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle.scenarios import make_scenario
 
@@ -87,7 +87,7 @@ def record(out: Path, kind: str, duration_s: float, speed: float) -> Path:
     world.start()
     try:
         assert world.clock is not None
-        session = RecordSession(
+        session = Recording(
             cfg, out_dir=out, name=kind, clock=world.clock, ports=world, daq_factory=world.daq_session,
             can_factory=lambda c: StarvedBus(world.can_bus(c), READ_DELAY_S), plugins=[world],
         )

@@ -8,8 +8,8 @@ import queue
 
 from rich.console import Console
 
-from rig.dashboard import Dashboard, Mark, MarkInput
-from rig.status import StatusBoard
+from rig.live.dashboard import Dashboard, Mark, MarkInput
+from rig.record.status import StatusBoard
 from vsccore.clock import SystemClock
 
 

@@ -1,7 +1,7 @@
 """GNSS tables decoded again from the raw port bytes agree with the decoded topics, row by row.
 
-Two levels: the record mapping (:func:`rig.dataset.session.gnss_record_columns`) against the
-recorder's own record builders (:mod:`rig.session_devices`) on every log kind in ASCII and binary,
+Two levels: the record mapping (:func:`rig.data.session.gnss_record_columns`) against the
+recorder's own record builders (:mod:`rig.record.gnss`) on every log kind in ASCII and binary,
 read back through the same JSON → column path as the decoded topics; and a short simulated session
 recorded by the real ``rig record`` path (rover_b switched to ASCII logs), where
 ``Session.gnss(receiver, source="raw")`` must give the tables of ``Session.gnss(receiver)``: same
@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from drivers.novatel import (
     BestVel,
     ClockModelStatus,
@@ -38,12 +38,12 @@ from drivers.novatel import (
     make_header,
 )
 from drivers.novatel.columns import decode_columns
-from rig.config import load_session as load_config
-from rig.dataset import Session, Table, load_session
-from rig.dataset.session import _columns, gnss_record_columns
-from rig.demo import demo_config_path
-from rig.session_devices import _heading, _marktime, _position, _time, _velocity
-from rig.simworld import record_simulated
+from rig.core.config import load_session as load_config
+from rig.data import Session, Table, load_session
+from rig.data.session import _columns, gnss_record_columns
+from rig.record.gnss import _heading, _marktime, _position, _time, _velocity
+from rig.sim.world import record_simulated
+from rig.workflows.demo import demo_config_path
 from sim_devices.vehicle.scenarios import make_scenario
 from tests.novatel.gen import sample_bestpos
 from vsccore.errors import AnalysisError, ConfigError
@@ -92,7 +92,7 @@ def _stream() -> bytes:
 
 
 def _records_from_framer(data: bytes) -> dict[str, list[dict[str, Any]]]:
-    """What the recorder writes to each decoded topic (rig.session_devices.GnssDevice._on_data)."""
+    """What the recorder writes to each decoded topic (rig.record.gnss.GnssDevice._on_data)."""
     out: dict[str, list[dict[str, Any]]] = {k: [] for k in ("bestpos", "bestvel", "heading", "markpos", "marktime",
                                                             "time")}
     for fr in Framer().feed(data):

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from rig.cli.main import main
-from rig.config import load_session
-from rig.demo import demo_config_path
+from rig.core.config import load_session
+from rig.workflows.demo import demo_config_path
 
 # The module's fixture runs the whole `rig demo --fast` (about 2 min on an idle 2-core machine). On a
 # busy one the governed simulated clock slows down instead of degrading the figures (issue 15), so the
@@ -41,7 +41,7 @@ def test_truth_file_is_a_plausible_drive(demo_out: Path) -> None:
 
 
 def test_recorded_session_is_complete(demo_out: Path) -> None:
-    from rig.inspect import info_to_json, read_session_info
+    from rig.data.info import info_to_json, read_session_info
 
     info = info_to_json(read_session_info(demo_out / "session" / "demo"))
     text = json.dumps(info)
@@ -88,3 +88,43 @@ def test_steering_ratio_from_the_demo_circles_matches_the_simulated_gear(demo_ou
         # short demo holds (≈ 100° of arc) with RTK noise: within 2 % (the long-hold acceptance test asks 1 %)
         assert abs(r["ratio"] / r["simulation_true_ratio"] - 1.0) < 0.02, r
     assert (demo_out / "steering-ratio.png").stat().st_size > 10_000
+
+
+# The demo's topics, schemas and message counts as recorded before the layout of rig/ changed (issue 30,
+# recorded on the old code at d8d4d8d). Two runs of the same code differed by at most 1 message on the
+# decoded topics and 0.3 % on the raw ones (reads are chunked as the host schedules them), 5 events and
+# 5 time-base records (both written on the host's housekeeping ticks).
+_GOLDEN = Path(__file__).with_name("golden") / "demo_topics.json"
+_LOOSE = ("/raw", "/rig/events", "/rig/timebase", "/relay/stats", "/can/vsc/frames")
+
+
+def _recorded_topics(base: Path) -> dict[str, dict[str, object]]:
+    import hashlib
+
+    from mcap.reader import make_reader
+
+    out: dict[str, dict[str, object]] = {}
+    for part in sorted(base.parent.glob(base.name + ".*.mcap")):
+        with part.open("rb") as f:
+            summary = make_reader(f).get_summary()
+        assert summary is not None and summary.statistics is not None
+        for cid, ch in summary.channels.items():
+            sc = summary.schemas.get(ch.schema_id)
+            d = out.setdefault(ch.topic, {"count": 0})
+            d.update(schema=sc.name if sc else None, schema_encoding=sc.encoding if sc else None,
+                     message_encoding=ch.message_encoding,
+                     schema_sha=hashlib.sha256(sc.data).hexdigest()[:16] if sc else None)
+            d["count"] = int(d["count"]) + summary.statistics.channel_message_counts.get(cid, 0)  # type: ignore[call-overload]
+    return out
+
+
+def test_topics_schemas_and_counts_are_those_of_the_golden_recording(demo_out: Path) -> None:
+    want = json.loads(_GOLDEN.read_text())
+    got = _recorded_topics(demo_out / "session" / "demo")
+    assert sorted(got) == sorted(want)
+    for topic, w in want.items():
+        g = got[topic]
+        assert {k: v for k, v in g.items() if k != "count"} == {k: v for k, v in w.items() if k != "count"}, topic
+        loose = any(topic.endswith(s) or topic == s for s in _LOOSE)
+        tol = max(10, 0.2 * w["count"]) if loose else max(3, 0.002 * w["count"])
+        assert abs(int(g["count"]) - w["count"]) <= tol, (topic, g["count"], w["count"])  # type: ignore[call-overload]

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 
 jsonschema = pytest.importorskip("jsonschema")
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from drivers.can.bus import BusLoadMeter, frame_bit_times
-from rig.status import DeviceState, StatusBoard
+from rig.record.status import DeviceState, StatusBoard
 
 BITRATE = 500_000
 

@@ -370,21 +370,21 @@ def test_the_clock_stays_governed_while_the_session_stops(tmp_path: object, monk
     reader that closes its end owes nothing, and the clock is released once the session has stopped."""
     from pathlib import Path
 
-    from rig.session import RecordSession
-    from rig.simworld import record_simulated
+    from rig.record.recording import Recording
+    from rig.sim.world import record_simulated
     from tests.session.recording import FAST_RTK, config
 
     seen: list[tuple[bool, bool]] = []
-    stop = RecordSession.stop
+    stop = Recording.stop
 
-    def stop_and_look(self: RecordSession) -> object:
+    def stop_and_look(self: Recording) -> object:
         gov = self.clock.governor  # type: ignore[attr-defined]
         before = gov.enabled
         summary = stop(self)
         seen.append((before, gov.enabled))
         return summary
 
-    monkeypatch.setattr(RecordSession, "stop", stop_and_look)
+    monkeypatch.setattr(Recording, "stop", stop_and_look)
     cfg = config("straight:duration_s=2,speed_kmh=40", 3.0)
     rec = record_simulated(cfg, Path(str(tmp_path)), name="tail", rtk=FAST_RTK, lead_s=1.0, governed=True)
     assert rec.completed and rec.governor is not None
@@ -396,7 +396,7 @@ def test_a_governed_world_ends_0_1_s_after_the_last_gnss_output_not_0_5_s() -> N
     """The ECU's CAN stream ends with the drive; every stream that runs on past it looked like a CAN
     stream that ended early. The governed clock waits for the last epoch's logs to be written and
     read, so the world ends 0.1 s past the receivers' output latency (0.5 s on the free-running clock)."""
-    from rig.simworld import SimWorld
+    from rig.sim.world import SimWorld
     from tests.session.recording import config
 
     cfg = config("straight:duration_s=1,speed_kmh=40", 3.0)

@@ -1,7 +1,7 @@
 """The live clock fit refitted at a bounded rate: the same times as refitting at every bin, for a fraction of the work.
 
 A GNSS receiver (20 Hz logs, 3 ms mean serial latency) and a CAN interface with its own crystal
-(−30 ppm, 360 frames/s, 0.4 ms mean USB latency) are streamed through :class:`rig.timebase.Timebase`
+(−30 ppm, 360 frames/s, 0.4 ms mean USB latency) are streamed through :class:`rig.core.timebase.Timebase`
 in receive order, as the recorder does: every CAN frame goes through ``device_to_utc``. The default
 estimator (refit every ``refit_s`` = 2 s of device time once converged) is compared with one that
 refits whenever a 0.5 s bin closes (``refit_s=0``, the behaviour before), and both with the truth.
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from rig.timebase import ClockEstimator, Timebase
+from rig.core.timebase import ClockEstimator, Timebase
 from vsccore.gpstime import gps_ns_to_unix_ns, gps_to_ns
 
 G0 = gps_to_ns(2400, 345_600.0)

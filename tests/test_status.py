@@ -6,7 +6,7 @@ import threading
 
 from rich.console import Console
 
-from rig.status import DeviceState, StatusBoard, render_status
+from rig.record.status import DeviceState, StatusBoard, render_status
 
 S = 1_000_000_000
 

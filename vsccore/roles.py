@@ -1,7 +1,7 @@
 """The rig's signal roles and the SI unit each role's values carry.
 
 Shared by the CAN decoder (:mod:`drivers.can.roles`, which checks a DBC mapping against it) and the
-session file's topic schemas (:mod:`rig.topics`), which must not pay for importing cantools and
+session file's topic schemas (:mod:`rig.core.topics`), which must not pay for importing cantools and
 python-can just to name the roles.
 """
 

@@ -213,7 +213,7 @@ def unit_conversion(name: str, *, where: str = "unit") -> UnitConversion:
 # --------------------------------------------------------------------------------------------
 # Roles
 
-# the table lives in vsccore so that rig.topics can name the roles without importing cantools
+# the table lives in vsccore so that rig.core.topics can name the roles without importing cantools
 
 KNOWN_ROLES = frozenset(ROLE_SI_UNITS)
 

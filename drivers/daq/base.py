@@ -74,7 +74,7 @@ class DaqChannelConfig:
     @classmethod
     def from_config(cls, d: Mapping[str, Any], where: str = "daq.channels") -> DaqChannelConfig:
         """From a session configuration ``[daq].channels`` entry (``DaqChannelConfig.model_dump()`` of
-        ``rig.config``): ``name``, ``physical``, ``range_v = (min, max)``, ``terminal``, optional ``role``.
+        ``rig.core.config``): ``name``, ``physical``, ``range_v = (min, max)``, ``terminal``, optional ``role``.
 
         Raises:
             ConfigError: a missing or invalid key (the message names ``where`` and the channel).

@@ -140,7 +140,7 @@ class DaqSession:
         read_timeout_s: float | None = None,
         where: str = "daq",
     ) -> DaqSession:
-        """A session for the configuration's ``[daq]`` table (``DaqConfig.model_dump()`` of ``rig.config``).
+        """A session for the configuration's ``[daq]`` table (``DaqConfig.model_dump()`` of ``rig.core.config``).
 
         Uses ``backend`` (a registry name: ``sim``, ``nidaqmx`` or an entry point), ``device``,
         ``rate_hz``, ``block_size``, ``buffer_samples``, ``channels`` (see

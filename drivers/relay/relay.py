@@ -113,7 +113,7 @@ class RelayStats:
         return {"rtcm3": "rtcmv3"}.get(kind, kind)
 
     def to_topic_dict(self) -> dict[str, Any]:
-        """The ``/relay/stats`` record (schema ``vsc_rig.relay.Stats`` in ``rig.topics``) and extras."""
+        """The ``/relay/stats`` record (schema ``vsc_rig.relay.Stats`` in ``rig.core.topics``) and extras."""
         return {
             "source": self.source,
             "format": self.format,

@@ -182,7 +182,7 @@ class RollModel:
 
     @classmethod
     def from_vehicle(cls, v: VehicleRollParams) -> RollModel:
-        """From a vehicle description with the profile's field names (``rig.config.VehicleConfig``,
+        """From a vehicle description with the profile's field names (``rig.core.config.VehicleConfig``,
         the simulator's ``VehicleParams``): the two axles' roll stiffnesses add."""
         return cls(
             mass_kg=v.mass_kg, cg_height_m=v.cg_height_m, roll_axis_height_m=v.roll_axis_height_m,
@@ -442,7 +442,7 @@ class VehicleLtrModel:
 
     @classmethod
     def from_vehicle(cls, v: VehicleDynamicsParams) -> VehicleLtrModel:
-        """From a vehicle description with the profile's field names (``rig.config.VehicleConfig``, the
+        """From a vehicle description with the profile's field names (``rig.core.config.VehicleConfig``, the
         simulator's ``VehicleParams``); the two tyre constants are read too when the description has them."""
         tyre = ("tyre_mu_load_sensitivity", "tyre_stiffness_peak_load_ratio")
         extra = {name: float(getattr(v, name)) for name in tyre if hasattr(v, name)}

@@ -8,7 +8,7 @@
 
 Exit status of ``rig validate``: 0 when the estimate passes the configured tolerances, 1 when it
 fails them (so a CI script can gate on it), 2 on an error (unreadable session, bad option) and when
-a stream the result uses has an unusable time base (:mod:`rig.quality`; the message names the stream,
+a stream the result uses has an unusable time base (:mod:`rig.core.quality`; the message names the stream,
 the figure and the fix). A degraded stream is a ``TIMING DEGRADED`` line in the output and the JSON
 (``timing_warnings``, ``time_base``), as for ``rig rollover`` and ``rig steering reconstruct``.
 """
@@ -111,7 +111,7 @@ def error_model_cmd(
         import numpy as np
 
         from rig.analysis.steering import error_model
-        from rig.report import plot_error_model
+        from rig.evaluate.report import plot_error_model
 
         hi = max(float(np.max(em.speeds_mps)), 1.0)
         dense = error_model(model, np.linspace(hi / 200.0, hi, 400))
@@ -196,8 +196,8 @@ def validate(
     Exit status: 0 PASS, 1 FAIL (the configured [validation] tolerances), 2 error.
     """
     from rig.analysis.reference import ReferenceMethod
-    from rig.report import write_metrics_csv, write_validation_report
-    from rig.validate import validate_session, validation_lines
+    from rig.evaluate.report import write_metrics_csv, write_validation_report
+    from rig.evaluate.validate import validate_session, validation_lines
 
     with _progress(not no_progress, 8) as step:
         sv = validate_session(session, estimator=estimator, method=ReferenceMethod(method.value), progress=step)
@@ -233,13 +233,13 @@ def rollover(
     threshold: Annotated[float, typer.Option("--threshold", help="Warning threshold on |LTR|.")] = 0.9,
 ) -> None:
     """Load-transfer ratio from the CAN lateral acceleration and the roll model, predicted 1, 2 and 3 s ahead."""
-    from rig.validate import rollover_session
+    from rig.evaluate.validate import rollover_session
 
     if not 0.0 < threshold <= 1.0:
         raise ConfigError(f"--threshold must be in (0, 1], got {threshold}")
     rep = rollover_session(session, model=model, threshold=threshold)
     if plot is not None:
-        from rig.report import plot_rollover
+        from rig.evaluate.report import plot_rollover
 
         plot_rollover(rep, plot)
     if as_json:
@@ -279,7 +279,7 @@ def reconstruct_cmd(
     stop: Annotated[float | None, typer.Option("--stop", help="Only up to this time (s, as rig validate).")] = None,
 ) -> None:
     """Front road-wheel angle from GNSS speed and CAN lateral acceleration, against SWA / steering ratio."""
-    from rig.validate import steering_session
+    from rig.evaluate.validate import steering_session
 
     rep = steering_session(session, min_speed_kmh=min_speed_kmh, start_s=start, stop_s=stop)
     d = rep.to_dict()

@@ -1,7 +1,7 @@
 """``rig calibrate-baseline``, ``calibrate-steering-ratio``, ``steering-ratio manual`` and ``calibrate-imu``.
 
-Thin commands: options → :mod:`rig.calibrate` → text or JSON. Results are recorded next to the
-session in ``<session>.calibration.json`` (read back by :func:`rig.sessiondata.load_inputs`) and,
+Thin commands: options → :mod:`rig.evaluate.calibrate` → text or JSON. Results are recorded next to the
+session in ``<session>.calibration.json`` (read back by :func:`rig.data.inputs.load_inputs`) and,
 with ``--write PROFILE``, into the vehicle profile's ``[calibration]`` table.
 """
 
@@ -25,7 +25,7 @@ def _dump(obj: Any) -> str:
 
 
 def _timing_headline(warnings: Any) -> None:
-    """Degraded time-base verdicts (:mod:`rig.quality`) first, before the result they qualify."""
+    """Degraded time-base verdicts (:mod:`rig.core.quality`) first, before the result they qualify."""
     for w in warnings:
         if str(w).startswith("TIMING DEGRADED"):
             typer.echo(str(w))
@@ -80,7 +80,8 @@ def calibrate_baseline_cmd(
     slip-angle zero from the same runs. The result is recorded in <session>.calibration.json (later
     commands use it) unless --no-record; --write PROFILE puts it into the vehicle profile.
     """
-    from rig.calibrate import (
+    from rig.data.inputs import load_inputs, update_calibration_file
+    from rig.evaluate.calibrate import (
         BaselineOptions,
         baseline_record,
         calibrate_baseline,
@@ -89,7 +90,6 @@ def calibrate_baseline_cmd(
         plot_baseline,
         write_profile_calibration,
     )
-    from rig.sessiondata import load_inputs, update_calibration_file
 
     opts = BaselineOptions(min_speed_kmh=min_speed_kmh, min_duration_s=min_duration_s,
                            max_yaw_rate_dps=max_yaw_rate_dps, max_course_std_deg=max_course_std_deg,
@@ -146,8 +146,14 @@ def calibrate_steering_ratio_cmd(
     and the lever arms, fits a circle (least squares), and converts its radius R to the road-wheel
     angle δ = atan(L/R).
     """
-    from rig.calibrate import SteeringOptions, calibrate_steering_ratio, format_steering, plot_steering, steering_record
-    from rig.sessiondata import load_inputs, update_calibration_file
+    from rig.data.inputs import load_inputs, update_calibration_file
+    from rig.evaluate.calibrate import (
+        SteeringOptions,
+        calibrate_steering_ratio,
+        format_steering,
+        plot_steering,
+        steering_record,
+    )
 
     opts = SteeringOptions(max_speed_kmh=max_speed_kmh, max_swa_spread_deg=max_swa_spread_deg,
                            min_arc_deg=min_arc_deg)
@@ -241,8 +247,14 @@ def calibrate_imu_cmd(
     comments. The result corrects the recorded CAN yaw_rate (gyro z), lat_accel (accel y) and
     long_accel (accel x) per axis.
     """
-    from rig.calibrate import calibrate_imu, format_imu, read_accel_csv, read_gyro_csv, write_profile_calibration
-    from rig.sessiondata import update_calibration_file
+    from rig.data.inputs import update_calibration_file
+    from rig.evaluate.calibrate import (
+        calibrate_imu,
+        format_imu,
+        read_accel_csv,
+        read_gyro_csv,
+        write_profile_calibration,
+    )
 
     positions = read_accel_csv(accel) if accel is not None else None
     runs = read_gyro_csv(gyro) if gyro is not None else None

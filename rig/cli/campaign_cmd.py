@@ -1,4 +1,4 @@
-"""``rig campaign``: validate every session of a test campaign as Dask tasks (:mod:`rig.campaign`).
+"""``rig campaign``: validate every session of a test campaign as Dask tasks (:mod:`rig.workflows.campaign`).
 
     rig campaign sessions/ --out campaign/ [--workers 4] [--estimator a.mod:fn --estimator b.mod:fn]
     rig campaign 'sessions/2026-*/**' --scheduler tcp://10.0.0.5:8786 --out campaign/ --calibrate --rollover
@@ -25,7 +25,7 @@ class MethodChoice(StrEnum):
 
 
 class KeyChoice(StrEnum):
-    """``--cache-key``: the values of :class:`rig.campaign.KeyMode`."""
+    """``--cache-key``: the values of :class:`rig.workflows.campaign.KeyMode`."""
 
     QUICK = "quick"
     FULL = "full"
@@ -66,7 +66,7 @@ def campaign(
     Sessions already analysed (same content, estimator and options) come from the cache under --out; a failing
     session is a row with its error and never stops the campaign.
     """
-    from rig.campaign import RECORDED_ESTIMATE, CampaignOptions, KeyMode, find_sessions, run_campaign
+    from rig.workflows.campaign import RECORDED_ESTIMATE, CampaignOptions, KeyMode, find_sessions, run_campaign
 
     found = find_sessions(sessions)
     ests = tuple(None if e == RECORDED_ESTIMATE else e for e in estimator) if estimator else (None,)

@@ -250,7 +250,7 @@ def _load_roles(roles: Path, dbc: Path | None, bus: str | None) -> tuple[Databas
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{roles}: TOML syntax error: {exc}") from None
     if isinstance(doc.get("can"), list):
-        from rig.config import load_session
+        from rig.core.config import load_session
 
         cfg = load_session(roles)
         buses = {c.name: c for c in cfg.can}
@@ -511,7 +511,7 @@ def monitor(
 
     decoder: RoleDecoder | None = None
     if config is not None:
-        from rig.config import load_session
+        from rig.core.config import load_session
 
         session_cfg = load_session(config)
         buses = {c.name: c for c in session_cfg.can}

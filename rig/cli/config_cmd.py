@@ -15,7 +15,7 @@ def check(
     file: Annotated[Path, typer.Argument(help="A session configuration or vehicle profile (TOML).")],
 ) -> None:
     """Validate FILE and report every problem with its key path and line."""
-    from rig.config import SessionConfig, check_file
+    from rig.core.config import SessionConfig, check_file
 
     cfg = check_file(file)
     if isinstance(cfg, SessionConfig):

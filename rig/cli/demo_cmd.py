@@ -16,7 +16,7 @@ def demo(
     ] = None,
 ) -> None:
     """Simulate a test day with simulated devices, then show what each stage produced."""
-    from rig.demo import run_demo
+    from rig.workflows.demo import run_demo
 
     result = run_demo(out, fast=fast, config=config)
     for stage in result.stages:

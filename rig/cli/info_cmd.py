@@ -22,7 +22,7 @@ _FILE_HELP = "A session part (NAME.NNN.mcap), the session base path (DIR/NAME) o
 
 def info(
     file: Annotated[Path, typer.Argument(help=_FILE_HELP)],
-    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON (keys documented in rig.inspect).")]
+    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON (keys: rig.data.info).")]
     = False,
     gap_factor: Annotated[
         float, typer.Option("--gap-factor", help="An interval longer than this many median periods is a gap.")
@@ -35,7 +35,7 @@ def info(
     ] = False,
 ) -> None:
     """Duration, topics with counts and rates, devices, gaps, time-base quality, calibration and events."""
-    from rig.inspect import VerdictSource, format_info, info_to_json, read_session_info
+    from rig.data.info import VerdictSource, format_info, info_to_json, read_session_info
 
     if gap_factor <= 1.0 or min_gap_s < 0 or max_list < 0:
         raise ConfigError(f"--gap-factor must be > 1, --min-gap >= 0 and --max-list >= 0 "
@@ -50,8 +50,8 @@ def info(
 
 
 def _print_report(report: ExportReport) -> None:
+    from rig.data.info import format_utc
     from rig.export import ExportKind
-    from rig.inspect import format_utc
 
     for f in report.files:
         if f.kind is ExportKind.TABLE:

@@ -30,7 +30,7 @@ def layout(
     if config is None:
         text = layout_json(session_layout(bus=bus or "vsc"))
     else:
-        from rig.config import load_session
+        from rig.core.config import load_session
 
         cfg = load_session(config)
         ant = {r.antenna: r.name for r in cfg.receivers if r.role == "rover" and r.antenna}

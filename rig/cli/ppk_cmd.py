@@ -1,4 +1,4 @@
-"""``rig ppk``: post-processed kinematic solutions of a recorded session with RTKLIB (:mod:`rig.ppk`).
+"""``rig ppk``: post-processed kinematic solutions of a recorded session with RTKLIB (:mod:`rig.ppk.rtklib`).
 
     rig ppk sessions/2026-05-04_track [--rover rover_a --rover rover_b] [--out FILE] [--keep DIR] [--base FILE]
             [--systems G,R]
@@ -39,7 +39,7 @@ def ppk(
         "warning.")] = None,
 ) -> None:
     """Post-process the rovers' raw observations against the base corrections with RTKLIB (kinematic, combined)."""
-    from rig.ppk import run_ppk
+    from rig.ppk.rtklib import run_ppk
 
     res = run_ppk(session, rovers=rover, out=out, work_dir=keep, timeout_s=timeout_s, elevation_mask_deg=mask_deg,
                   base=base, systems=None if systems is None else tuple(

@@ -3,7 +3,7 @@
     rig record car.toml --out sessions/ --name run1          # until Ctrl-C / SIGTERM (or --duration)
     rig sim record rig/examples/sim.toml --out out/ --fast --set simulation.true_mount_offset_deg=0.5
 
-While recording, :class:`rig.dashboard.Dashboard` shows every device on a terminal (``m`` + a note +
+While recording, :class:`rig.live.dashboard.Dashboard` shows every device on a terminal (``m`` + a note +
 Enter records an operator mark on ``/rig/events`` at the time of the key press); otherwise a status
 line is printed every few seconds. Ctrl-C or SIGTERM stop the session cleanly: devices stopped,
 file finalized.
@@ -27,14 +27,14 @@ import typer
 from vsccore.errors import ConfigError
 
 if TYPE_CHECKING:
-    from rig.config import SessionConfig
-    from rig.dashboard import Dashboard
+    from rig.core.config import SessionConfig
     from rig.live import LiveOptions, LiveView
-    from rig.session import RecordSession, SessionSummary
+    from rig.live.dashboard import Dashboard
+    from rig.record.recording import Recording, RecordingSummary
 
 # the recorder and the simulator are imported by the commands that use them (``rig --help`` stays fast)
 FAST_SPEED = 3.0
-"""``rig.simworld.FAST_SPEED`` (the --fast clock factor; a test keeps the two equal)."""
+"""``rig.sim.world.FAST_SPEED`` (the --fast clock factor; a test keeps the two equal)."""
 
 
 @contextmanager
@@ -58,16 +58,16 @@ def _stop_on_signals(stop: threading.Event) -> Iterator[dict[str, str]]:
 
 
 @contextmanager
-def _dashboard(enabled: bool) -> Iterator[Callable[[RecordSession], None]]:
+def _dashboard(enabled: bool) -> Iterator[Callable[[Recording], None]]:
     """The live dashboard (or plain status lines) of the running session; yields the session's tick.
 
     The dashboard starts on the first tick (the session is recording then) and stops on exit.
     """
-    from rig.dashboard import Dashboard
+    from rig.live.dashboard import Dashboard
 
     running: list[Dashboard] = []
 
-    def tick(session: RecordSession) -> None:
+    def tick(session: Recording) -> None:
         if enabled and not running:
             dash = Dashboard(session.board, session.clock, on_mark=lambda m: session.mark(m.note, host_ns=m.host_ns))
             dash.start()
@@ -106,11 +106,11 @@ def _live_options(
 
 
 @contextmanager
-def _live(options: LiveOptions | None) -> Iterator[Callable[[RecordSession], None]]:
+def _live(options: LiveOptions | None) -> Iterator[Callable[[Recording], None]]:
     """Yields the call that attaches the live view to the recording session; stops it on exit."""
     views: list[LiveView] = []
 
-    def attach(session: RecordSession) -> None:
+    def attach(session: Recording) -> None:
         if options is None:
             return
         from rig.live import LiveView
@@ -127,8 +127,8 @@ def _live(options: LiveOptions | None) -> Iterator[Callable[[RecordSession], Non
             view.detach()
 
 
-def _report(summary: SessionSummary, stopped_by: str | None) -> None:
-    from rig.session import summary_lines
+def _report(summary: RecordingSummary, stopped_by: str | None) -> None:
+    from rig.record.recording import summary_lines
 
     for line in summary_lines(summary):
         typer.echo(line, err=True)
@@ -157,9 +157,9 @@ def record(
 ) -> None:
     """Record every device of CONFIG (receivers, correction relay, CAN, DAQ) into one MCAP session file
     until Ctrl-C, SIGTERM or --duration."""
-    from rig.config import load_session
-    from rig.session import RecordSession
-    from rig.simworld import SIM_PREFIX
+    from rig.core.config import load_session
+    from rig.record.recording import Recording
+    from rig.sim.world import SIM_PREFIX
 
     cfg = load_session(config)
     simulated = [r.name for r in cfg.receivers if r.port.startswith(SIM_PREFIX)]
@@ -170,7 +170,7 @@ def record(
     _check_free_space(cfg, out)  # before any device is set up
     live_opts = _live_options(live, live_port, live_bind, live_token, live_status_port, live_full_rate)
     stop = threading.Event()
-    session = RecordSession(cfg, out_dir=out, name=name, config_path=config)
+    session = Recording(cfg, out_dir=out, name=name, config_path=config)
     with _stop_on_signals(stop) as got, _live(live_opts) as attach_live:
         session.start()
         typer.echo(f"recording {session.name} to {session.base}.000.mcap (Ctrl-C to stop)", err=True)
@@ -216,8 +216,8 @@ def sim_record(
 ) -> None:
     """Record a simulated session: the simulated car of CONFIG with every device on pseudo-terminals, a
     virtual CAN bus and the simulated DAQ, through the real recording path, until the drive ends."""
-    from rig.config import load_session, parse_override
-    from rig.simworld import FAST_SPEED, record_simulated
+    from rig.core.config import load_session, parse_override
+    from rig.sim.world import FAST_SPEED, record_simulated
 
     overrides = dict(parse_override(item) for item in (set_ or []))
     if drive is not None:
@@ -234,7 +234,7 @@ def sim_record(
 
     with _stop_on_signals(stop) as got, _dashboard(not no_dashboard) as tick, _live(live_opts) as attach_live:
 
-        def started(s: RecordSession) -> None:
+        def started(s: Recording) -> None:
             typer.echo(f"recording {s.name} to {s.base}.000.mcap (Ctrl-C to stop)", err=True)
             attach_live(s)
 
@@ -254,14 +254,14 @@ def sim_record(
 
 def _check_free_space(cfg: SessionConfig, out: Path | None) -> None:
     """Refuse a disk below ``output.min_free_disk_mb`` at once, not after the devices were set up."""
-    from rig.recorder import RecorderOptions
-    from rig.recorder.writer import check_free_space
+    from rig.store import RecorderOptions
+    from rig.store.writer import check_free_space
 
     check_free_space(out if out is not None else Path(cfg.output.directory), RecorderOptions.from_output(cfg.output))
 
 
 def _check_simulated(cfg: SessionConfig, path: Path) -> None:
-    from rig.simworld import SIM_PREFIX
+    from rig.sim.world import SIM_PREFIX
 
     if cfg.simulation is None:
         raise ConfigError(f"{path}: no [simulation] table; `rig sim record` records a simulated car")

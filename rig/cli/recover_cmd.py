@@ -17,7 +17,7 @@ def recover(
 ) -> None:
     """Write a finalized, indexed copy of FILE with every intact chunk: before and after any damage, up to
     its last complete record. Also removes the disk-space reserve a killed recorder left beside it."""
-    from rig.recorder.recover import recover as recover_part
+    from rig.store.recover import recover as recover_part
 
     report = recover_part(file, out, overwrite=overwrite)
     if report.was_finalized:

@@ -63,7 +63,7 @@ def build_drive(scenario: str, params: dict[str, str]) -> Drive | Scenario:
 
 def load_vehicle(path: Path) -> VehicleParams:
     """Vehicle parameters from a vehicle profile or a session configuration (its ``[vehicle]``)."""
-    from rig.config import SessionConfig, check_file
+    from rig.core.config import SessionConfig, check_file
     from sim_devices.vehicle import VehicleParams
 
     cfg = check_file(path)

@@ -1,6 +1,6 @@
 """The live view of a recording session: Foxglove WebSocket channels and a status page for a phone.
 
-``rig record … --live`` attaches a :class:`LiveView` to the running :class:`~rig.session.RecordSession`:
+``rig record … --live`` attaches a :class:`LiveView` to the running :class:`~rig.record.recording.Recording`:
 
 - the recorder's writer thread hands every written message to :meth:`LiveFeed.offer` (the
   recorder's ``tap``), which appends it to a bounded drop-oldest queue and returns: the live view

@@ -10,7 +10,7 @@ Live-only channels (not recorded topics; :data:`LIVE_TOPICS`):
   course (heading of the baseline B → A less the mounting offset in force, minus the course), its
   ± band and the VSC's own estimate (CAN role ``vsc_beta_estimate``);
 - ``/live/ltr``: the live load-transfer ratio, its prediction and the warning state (the session's
-  :class:`~rig.session_devices.LiveLtr`, as on the dashboard);
+  :class:`~rig.analysis.live_ltr.LiveLtr`, as on the dashboard);
 - ``/live/status``: the status page's document (fix type per rover, correction age, baseline, β,
   LTR, recording time, free disk);
 - ``/live/log``: ``/rig/events`` as ``foxglove.Log`` for Foxglove's Log panel.
@@ -35,10 +35,10 @@ from typing import Any, Protocol
 
 import pymap3d
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from drivers.relay.endpoints import Secret
-from rig.status import DeviceState, SessionStatus
-from rig.topics import foxglove_time
+from rig.core.topics import foxglove_time
+from rig.record.status import DeviceState, SessionStatus
 from vsccore.angles import sideslip_from_azimuths
 from vsccore.errors import ConfigError
 
@@ -258,7 +258,7 @@ class LiveFeed:
         rovers: rover receiver → antenna letter (fix type per rover).
         mount_offset_deg: mounting offset of the baseline in force (removed from the heading).
         baseline_nominal_m: configured A–B distance.
-        status: a snapshot of the session's :class:`~rig.status.StatusBoard` (recording, disk, LTR).
+        status: a snapshot of the session's :class:`~rig.record.status.StatusBoard` (recording, disk, LTR).
         now_ns: the session clock.
     """
 

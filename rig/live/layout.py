@@ -15,7 +15,7 @@ from typing import Any
 
 import foxglove.layouts as fl
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from rig.live.feed import LIVE_TOPICS, TOPIC_LIVE_LOG, TOPIC_LIVE_LTR, TOPIC_LIVE_SIDESLIP, TOPIC_LIVE_STATUS
 
 __all__ = ["layout_json", "message_paths", "session_layout"]

@@ -20,7 +20,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from drivers.relay.endpoints import MASK, Secret
 from vsccore.errors import ConfigError
 

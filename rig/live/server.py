@@ -24,7 +24,7 @@ import foxglove
 from foxglove.channels import LogChannel
 from foxglove.messages import Log, LogLevel, Timestamp
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from rig.live.feed import TOPIC_LIVE_LOG
 from vsccore.errors import ConfigError
 

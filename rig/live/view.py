@@ -7,7 +7,7 @@ import logging
 from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from drivers.relay.endpoints import MASK
 from rig.live.feed import LIVE_TOPICS, LiveFeed, LiveOptions
 from rig.live.gate import UPSTREAM_HOST, TokenGate
@@ -16,7 +16,7 @@ from rig.live.page import StatusPage
 from rig.live.server import FoxgloveSink
 
 if TYPE_CHECKING:
-    from rig.session import RecordSession
+    from rig.record.recording import Recording
 
 __all__ = ["LiveView", "upfront_channels"]
 
@@ -43,7 +43,7 @@ def upfront_channels(antenna_a: str, antenna_b: str, buses: Iterable[str]) -> di
 
 
 class LiveView:
-    """Serve a running :class:`~rig.session.RecordSession` live (see :mod:`rig.live`).
+    """Serve a running :class:`~rig.record.recording.Recording` live (see :mod:`rig.live`).
 
     :meth:`attach` once the session records (it hooks the feed onto the recorder's tap and starts the
     servers); :meth:`detach` unhooks it, stops the feed's thread and the servers (idempotent).
@@ -59,9 +59,9 @@ class LiveView:
         self.sink: FoxgloveSink | None = None
         self.page: StatusPage | None = None
         self.gate: TokenGate | None = None
-        self._session: RecordSession | None = None
+        self._session: Recording | None = None
 
-    def attach(self, session: RecordSession) -> None:
+    def attach(self, session: Recording) -> None:
         opts = self.options
         cfg = session.cfg
         by_antenna = {r.antenna: r.name for r in cfg.receivers if r.role == "rover" and r.antenna}
@@ -92,7 +92,7 @@ class LiveView:
         session.recorder.tap = feed.offer
         log.info("live view: %s (Foxglove), status page %s", self.ws_url, page.url(opts.bind))
 
-    def detach(self, session: RecordSession | None = None) -> None:
+    def detach(self, session: Recording | None = None) -> None:
         s = session or self._session
         if s is not None and s.recorder.tap is not None:
             s.recorder.tap = None

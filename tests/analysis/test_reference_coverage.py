@@ -30,11 +30,11 @@ from rig.analysis.reference import (
     reference_sideslip,
 )
 from rig.analysis.rollover import RollModel
-from rig.config import load_session
-from rig.demo import demo_config_path
-from rig.sessiondata import load_inputs
-from rig.simworld import record_simulated
-from rig.validate import validate_session
+from rig.core.config import load_session
+from rig.data.inputs import load_inputs
+from rig.evaluate.validate import validate_session
+from rig.sim.world import record_simulated
+from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, make_scenario, simulate
 from tests.analysis.obs import A_XY, B_XY, BASELINE_M

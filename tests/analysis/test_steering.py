@@ -16,8 +16,8 @@ from rig.analysis.steering import (
     error_table,
     reconstruct_steering,
 )
-from rig.config import VehicleConfig, VehicleProfile
-from rig.validate import steering_model
+from rig.core.config import VehicleConfig, VehicleProfile
+from rig.evaluate.validate import steering_model
 from sim_devices.vehicle import GRAVITY, GroundTruth, SteeringGear, VehicleParams, make_scenario, simulate
 from vsccore.errors import AnalysisError
 

@@ -10,7 +10,7 @@ import pytest
 from rig.analysis.manoeuvres import ManoeuvreKind
 from rig.analysis.metrics import Tolerances
 from rig.analysis.reference import AntennaGeometry, reference_sideslip
-from rig.analysis.validate import load_estimator, run_estimator, validate_estimate
+from rig.analysis.scoring import load_estimator, run_estimator, validate_estimate
 from sim_devices.vehicle import GroundTruth
 from tests.analysis.obs import A_XY, BASELINE_M, RtkNoise, gnss_spec_for, observe_reference_inputs
 from vsccore.errors import AnalysisError

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from rig.config import SessionConfig, load_session
-from rig.sessiondata import update_calibration_file
+from rig.core.config import SessionConfig, load_session
+from rig.data.inputs import update_calibration_file
 from tests.calib_cli.synth import (
     SIM_TOML,
     circles,

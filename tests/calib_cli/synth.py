@@ -1,6 +1,6 @@
 """Simulated sessions for the calibration commands, recorded through the real recording path.
 
-:func:`record_sim` runs :func:`rig.simworld.record_simulated` (simulated receivers on
+:func:`record_sim` runs :func:`rig.sim.world.record_simulated` (simulated receivers on
 pseudo-terminals, the VSC ECU on a virtual CAN bus, the simulated DAQ, the real recorder) with the
 example configuration ``rig/examples/sim.toml`` and ``--set``-style overrides, on a short drive.
 """
@@ -16,12 +16,12 @@ import numpy as np
 import pymap3d
 from scipy.signal import lfilter
 
-import rig.topics as T  # noqa: N812 - short alias
+import rig.core.topics as T  # noqa: N812 - short alias
 from drivers.can.dbc import load_dbc
 from drivers.can.roles import RoleMap, encode_role_frame
-from rig.config import SessionConfig, load_session
-from rig.recorder import Attachment, Recorder, RecorderOptions, session_metadata
-from rig.simworld import record_simulated, true_antenna_lever_arms
+from rig.core.config import SessionConfig, load_session
+from rig.sim.world import record_simulated, true_antenna_lever_arms
+from rig.store import Attachment, Recorder, RecorderOptions, session_metadata
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle import Drive, GroundTruth, Scenario, VehicleParams, make_scenario, simulate
 from vsccore.gpstime import gps_ns_to_unix_ns, gps_to_ns

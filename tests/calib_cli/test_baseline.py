@@ -13,9 +13,9 @@ import pytest
 from scipy import stats
 
 from calibration.mount import OffsetEstimate
-from rig.calibrate import BaselineOptions, calibrate_baseline
-from rig.config import AntennaConfig, SessionConfig
-from rig.sessiondata import load_inputs
+from rig.core.config import AntennaConfig, SessionConfig
+from rig.data.inputs import load_inputs
+from rig.evaluate.calibrate import BaselineOptions, calibrate_baseline
 from tests.calib_cli.conftest import TRUE_OFFSET_DEG, TRUE_OPTICAL_ZERO_DEG
 from tests.calib_cli.synth import REPO, run_cli
 from vsccore.errors import CalibrationError

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.config import load_profile
-from rig.sessiondata import load_inputs
+from rig.core.config import load_profile
+from rig.data.inputs import load_inputs
 from tests.calib_cli.synth import REPO, run_cli
 
 G = 9.80665

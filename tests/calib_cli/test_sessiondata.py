@@ -1,4 +1,4 @@
-"""rig.sessiondata against a simulated recording and truth-built sessions (physics and truth as references)."""
+"""rig.data.inputs against a simulated recording and truth-built sessions (physics and truth as references)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.config import ImuCalibrationConfig, SessionConfig
-from rig.sessiondata import calibration_file_path, load_inputs, read_calibration_file, update_calibration_file
+from rig.core.config import ImuCalibrationConfig, SessionConfig
+from rig.data.inputs import calibration_file_path, load_inputs, read_calibration_file, update_calibration_file
 from sim_devices.vehicle import make_scenario
 from tests.calib_cli.conftest import TRUE_OFFSET_DEG
 from tests.calib_cli.synth import simulate_truth, write_truth_session

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from calibration.segments import Direction
-from rig.calibrate import calibrate_steering_ratio
-from rig.config import SessionConfig, load_session
-from rig.sessiondata import load_inputs, read_calibration_file, update_calibration_file
+from rig.core.config import SessionConfig, load_session
+from rig.data.inputs import load_inputs, read_calibration_file, update_calibration_file
+from rig.evaluate.calibrate import calibrate_steering_ratio
 from sim_devices.vehicle import Drive, SteeringGear, VehicleParams, demo_drive, make_scenario
 from tests.calib_cli.conftest import TRUE_OFFSET_DEG
 from tests.calib_cli.synth import SIM_TOML, run_cli, simulate_truth, write_truth_session

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.config import load_session
+from rig.core.config import load_session
 from sim_devices.vehicle import Drive, GroundTruth, make_scenario
 from tests.calib_cli.synth import SIM_TOML, simulate_truth, write_truth_session
 

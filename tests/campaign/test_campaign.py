@@ -12,7 +12,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
-from rig.campaign import (
+from rig.workflows.campaign import (
     CampaignOptions,
     KeyMode,
     SessionTask,

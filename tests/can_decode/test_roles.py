@@ -153,8 +153,8 @@ def test_valid_when_accepts_a_list(small_db: Database) -> None:
 
 
 def test_pydantic_can_config_dump_is_accepted(small_db: Database, tmp_path) -> None:
-    """The session configuration's [[can]] model (rig.config) feeds RoleMap.from_mapping as is."""
-    from rig.config import CanConfig
+    """The session configuration's [[can]] model (rig.core.config) feeds RoleMap.from_mapping as is."""
+    from rig.core.config import CanConfig
 
     cfg = CanConfig.model_validate({"dbc": str(tmp_path / "x.dbc"), **small_roles()})
     rm = RoleMap.from_mapping(cfg.model_dump(), small_db, key_prefix="can.vsc.")

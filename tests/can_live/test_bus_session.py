@@ -341,7 +341,7 @@ def test_timestamp_sources_per_interface() -> None:
 def test_bus_config_from_a_session_configuration_table() -> None:
     from pathlib import Path
 
-    from rig.config import load_session
+    from rig.core.config import load_session
 
     cfg = load_session(Path(__file__).resolve().parents[2] / "examples" / "sim.toml")
     bus = CanBusConfig.from_mapping(cfg.can[0].model_dump())

@@ -8,7 +8,7 @@ import pytest
 from typer.testing import CliRunner
 
 from rig.cli.main import app
-from rig.config import ConfigFileError, load_profile, load_session, parse_override
+from rig.core.config import ConfigFileError, load_profile, load_session, parse_override
 from tests.conftest import REPO
 
 EXAMPLES = REPO / "examples"

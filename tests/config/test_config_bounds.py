@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from rig.config import (
+from rig.core.config import (
     NOVATEL_BAUDS,
     ConfigFileError,
     check_file,

@@ -19,7 +19,7 @@ import pytest
 from drivers.analog import AnalogChannelSpec, AnalogDecoder
 from drivers.daq import DaqBlock, DaqChannelConfig, DaqEvent, DaqEventKind, DaqSession, TerminalConfig
 from drivers.optical import OpticalRole, OpticalSensorSpec, SensorKind, convert_block, transfer_to_point
-from rig.config import AnalogChannelConfig, OpticalSensorConfig, load_session
+from rig.core.config import AnalogChannelConfig, OpticalSensorConfig, load_session
 from sim_devices.daq import SimDaqBackend, SimOpticalSensor, SyncPulseOutput, sim_daq_sources
 from tests.daq.helpers import T0_NS, ManualClock, truth_from_body_velocity
 from vsccore.errors import ConfigError

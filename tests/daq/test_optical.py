@@ -244,7 +244,7 @@ def test_spec_validation_and_dict_round_trip() -> None:
 
 def test_records_fit_the_optical_topic_schema_and_blocks_pack_for_the_recorder() -> None:
     """What the recorder writes: /optical/<sensor> JSON records and /daq/<device>/samples blocks."""
-    from rig import topics
+    from rig.core import topics
 
     truth = slalom(duration=3.0)
     spec = body_spec()

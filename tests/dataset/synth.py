@@ -8,11 +8,11 @@ from typing import Any
 
 import numpy as np
 
-import rig.topics as T  # noqa: N812 - short alias
+import rig.core.topics as T  # noqa: N812 - short alias
 from drivers.can.dbc import load_dbc
 from drivers.can.roles import RoleMap, encode_role_frame
 from drivers.optical import OpticalRole, OpticalSensorSpec, SensorKind, correvit_channels
-from rig.recorder import Attachment, Recorder, RecorderOptions, session_metadata
+from rig.store import Attachment, Recorder, RecorderOptions, session_metadata
 from sim_devices.vehicle.truth import GroundTruth
 from vsccore.gpstime import gps_ns_to_unix_ns, gps_to_ns
 
@@ -187,7 +187,7 @@ def write_session(out: Path, name: str = "synth", duration_s: float = 20.0, roll
             for b in range(0, n_seg, 100):
                 last = min(b + 99, n_seg - 1)
                 host_b = int(host_of_gps(g_k[last : last + 1])[0]) + 4_000_000
-                if b == 0 and last_host is not None:  # rig.session_devices.DaqDevice._index_base
+                if b == 0 and last_host is not None:  # rig.record.daq.DaqDevice._index_base
                     base = next_index + max(0, round((host_b - last_host) / (1e9 / RATE)))
                 first = base + b
                 blk = T.DaqBlock(first, RATE, names, np.ascontiguousarray(volts[:, b : b + 100]))

@@ -1,4 +1,4 @@
-"""Sessions written by the recorder from synthetic data of known truth, read back through rig.dataset."""
+"""Sessions written by the recorder from synthetic data of known truth, read back through rig.data."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import rig.topics as T  # noqa: N812 - short alias
-from rig.dataset import align, load_session
-from rig.recorder import scan_part
+import rig.core.topics as T  # noqa: N812 - short alias
+from rig.data import align, load_session
+from rig.store import scan_part
 from tests.dataset.synth import (
     BESTPOSB_BYTES,
     DAQ_G0,

@@ -1,6 +1,6 @@
 """Files written before decision record 0005 carry integer-ns times as plain JSON integers (``gps_time_ns``,
 ``device_time_ns``, ``offset_ns``, ``start_ns``/``end_ns``); newer files carry them as two integers each
-(``gps_time: {week, tow_ns}``, ``foxglove.Time``, ``foxglove.Duration``). ``rig.dataset`` and the exports
+(``gps_time: {week, tow_ns}``, ``foxglove.Time``, ``foxglove.Duration``). ``rig.data`` and the exports
 read both to the same int64 ns columns."""
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import numpy as np
 import pyarrow.dataset as pads
 import pytest
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
-from rig.dataset import Session, Table, load_session
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
+from rig.data import Session, Table, load_session
 from rig.export import export_parquet
-from rig.recorder import Recorder, RecorderOptions, session_metadata
+from rig.store import Recorder, RecorderOptions, session_metadata
 from tests.test_dataset_raw_gnss import assert_same_columns
 from vsccore.gpstime import gps_ns_to_unix_ns, gps_to_ns
 

@@ -3,7 +3,7 @@
 The simulated receivers put each log on the wire ``simulation.gnss.output_latency_s`` (20 ms) after
 its GPS time, serialised at the port's baud rate (a 104-byte BESTPOSB takes 2.26 ms at 460800 Bd);
 the host stamps a read when the last byte is in. Neither part is visible to the lower envelope, so
-both the live time base and :mod:`rig.dataset` take them off, and CAN frames (stamped by the
+both the live time base and :mod:`rig.data` take them off, and CAN frames (stamped by the
 simulated ECU with their true transmit time) land on the common time base within 1 ms.
 """
 
@@ -14,13 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
-from rig.config import SessionConfig
-from rig.config import load_session as load_config
-from rig.dataset import Session, load_session
-from rig.demo import demo_config_path
-from rig.recorder import scan_part
-from rig.simworld import record_simulated
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
+from rig.core.config import SessionConfig
+from rig.core.config import load_session as load_config
+from rig.data import Session, load_session
+from rig.sim.world import record_simulated
+from rig.store import scan_part
+from rig.workflows.demo import demo_config_path
 from sim_devices.vehicle.scenarios import make_scenario
 
 MS = 1_000_000

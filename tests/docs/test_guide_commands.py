@@ -33,8 +33,8 @@ import serial
 
 from drivers.novatel import Framer
 from drivers.novatel.framer import FrameKind
-from rig.config import load_session
-from rig.session_devices import receiver_commands
+from rig.core.config import load_session
+from rig.record.gnss import receiver_commands
 from sim_devices.gnss import SimBase, SimRover, SimTimeBase
 from sim_devices.vehicle import make_scenario, simulate
 from vsccore.clock import ScaledClock

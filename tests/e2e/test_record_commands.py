@@ -15,12 +15,12 @@ from typing import Any
 import tomli_w
 from typer.testing import CliRunner
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from rig.cli.main import app
-from rig.dataset import load_session
-from rig.demo import demo_config_path
-from rig.recorder import find_parts
-from rig.simworld import SimWorld
+from rig.data import load_session
+from rig.sim.world import SimWorld
+from rig.store import find_parts
+from rig.workflows.demo import demo_config_path
 from tests.session.recording import FAST_RTK, config
 
 REPO = Path(__file__).resolve().parents[2]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from rig.recorder import find_parts, scan_part
+from rig.store import find_parts, scan_part
 from tests.inspect.synth import Synth, write_session
 
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-import rig.topics as T  # noqa: N812 - short alias
+import rig.core.topics as T  # noqa: N812 - short alias
 from drivers.novatel import (
     BestPos,
     BestVel,
@@ -28,7 +28,7 @@ from drivers.novatel import (
     encode_binary,
     make_header,
 )
-from rig.recorder import Attachment, Recorder, RecorderOptions, session_metadata
+from rig.store import Attachment, Recorder, RecorderOptions, session_metadata
 from tests.relay.helpers import base_epoch
 from vsccore.gpstime import gps_ns_to_unix_ns, gps_to_ns
 

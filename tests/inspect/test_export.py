@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import rig.topics as T  # noqa: N812 - short alias
+import rig.core.topics as T  # noqa: N812 - short alias
 from drivers.novatel import FrameKind, Framer
 from rig.cli.main import app
 from rig.export import ExportKind, ExportReport, export_csv, export_raw_gnss
-from rig.recorder import find_parts, scan_part
+from rig.store import find_parts, scan_part
 from tests.inspect.synth import RECEIVERS, U0, Synth
 from vsccore.errors import AnalysisError, SessionFileError
 
@@ -120,7 +120,7 @@ def test_truncated_session_exports_what_was_recorded(synth: Synth, truncated: tu
 
 
 def test_session_without_raw_streams(tmp_path: Path) -> None:
-    from rig.recorder import Recorder, RecorderOptions
+    from rig.store import Recorder, RecorderOptions
 
     opts = RecorderOptions(min_free_bytes=0, warn_free_bytes=0, reserve_bytes=0)
     with Recorder(tmp_path, "decoded_only", options=opts) as rec:
@@ -189,21 +189,21 @@ def test_csv_can_roles_from_the_attached_dbc(tmp_path: Path) -> None:
 
 
 def test_csv_streams_the_can_roles_and_optical_samples(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The bulk goes out batch by batch: rig.dataset is asked only for the GNSS logs and events (was: the whole
+    """The bulk goes out batch by batch: rig.data is asked only for the GNSS logs and events (was: the whole
     session, every CAN frame and DAQ block, in memory), and small batches give the same files as one batch
-    (counter checks run on across batches); the role values equal rig.dataset's whole-bus decode."""
-    import rig.dataset
+    (counter checks run on across batches); the role values equal rig.data's whole-bus decode."""
+    import rig.data
     from tests.dataset.synth import write_session as write_dataset_session
 
     ds = write_dataset_session(tmp_path, duration_s=6.0)
     asked: list[list[str] | None] = []
-    real = rig.dataset.load_session
+    real = rig.data.load_session
 
-    def spy(path: Path | str, **kw: Any) -> rig.dataset.Session:
+    def spy(path: Path | str, **kw: Any) -> rig.data.Session:
         asked.append(sorted(kw["topics"]) if kw.get("topics") is not None else None)
         return real(path, **kw)
 
-    monkeypatch.setattr(rig.dataset, "load_session", spy)
+    monkeypatch.setattr(rig.data, "load_session", spy)
     one = export_csv(ds.base, tmp_path / "one", chunk_rows=1 << 30)
     small = export_csv(ds.base, tmp_path / "small", chunk_rows=64)
     assert asked and all(a is not None and all(t.startswith("/gnss/") or t == T.TOPIC_EVENTS for t in a)

@@ -1,5 +1,5 @@
 """``rig export --format mdf4|parquet|mat``: read back with asammdf, pyarrow (+ DuckDB), h5py, mat73 and hdf5storage
-(MAT v7.3) and scipy.io (MAT v5), values equal to what the session holds (rig.dataset), units present, CAN raw
+(MAT v7.3) and scipy.io (MAT v5), values equal to what the session holds (rig.data), units present, CAN raw
 frames decodable with the session's DBC (MDF4) or byte-equal to the recorded ones (MAT)."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from rig.cli.main import app
-from rig.dataset import load_session
+from rig.data import load_session
 from rig.export import export_mat, export_mdf4, export_parquet, iter_groups, open_stream, unit_suffix
 from tests.dataset.synth import DBC, Synth, utc
 from tests.dataset.synth import write_session as write_dataset_session
@@ -156,7 +156,7 @@ def test_mat73_reads_back_with_h5py_equal_to_the_dataset(ds: Synth, tmp_path: Pa
     import h5py
     import scipy.io
 
-    from rig.export_mat import export_mat as export_mat_file
+    from rig.export.mat import export_mat as export_mat_file
 
     report = export_mat_file(ds.base, tmp_path, **({} if chunk_bytes is None else {"chunk_bytes": chunk_bytes}))
     (f,) = report.files
@@ -264,7 +264,7 @@ def test_mat73_fields_stream_in_whole_chunks_and_widen(tmp_path: Path) -> None:
     arriving later widen the matrix, the earlier rows padded with spaces / zeros."""
     import h5py
 
-    from rig.export_mat import _Struct
+    from rig.export.mat import _Struct
 
     rng = np.random.default_rng(1)
     path = tmp_path / "w.h5"
@@ -391,7 +391,7 @@ def _damaged_copy(ds: Synth, out: Path, where: str) -> tuple[Path, int, int, set
 
     from mcap.reader import make_reader
 
-    from rig.recorder import find_parts, scan_part
+    from rig.store import find_parts, scan_part
 
     parts = find_parts(ds.base)
     for p in parts:
@@ -423,7 +423,7 @@ def test_damaged_part_exports_every_intact_chunk_and_names_the_damage(ds: Synth,
     warns with the session reader's description of it (was: refused, or stopped at the damage)."""
     import pyarrow.dataset as pads
 
-    import rig.topics as T  # noqa: N812 - short alias
+    import rig.core.topics as T  # noqa: N812 - short alias
 
     (tmp_path / "s").mkdir()
     base, k, chunk_offset, in_chunk, n_parts = _damaged_copy(ds, tmp_path / "s", where)
@@ -464,7 +464,7 @@ def test_damaged_part_exports_every_intact_chunk_and_names_the_damage(ds: Synth,
 def test_can_counter_checks_run_on_across_batches(ds: Synth) -> None:
     """A counter jump on the first frame of a batch is flagged, as when the whole bus is decoded at once (was:
     each batch decoded alone, so its first frame was never checked)."""
-    import rig.topics as T  # noqa: N812 - short alias
+    import rig.core.topics as T  # noqa: N812 - short alias
     from drivers.can.dbc import parse_dbc_text
     from drivers.can.roles import encode_role_frame
     from rig.export import _can_chunk, _role_decoding, _roles_chunk
@@ -504,7 +504,7 @@ def test_unchunked_mcap_file_exports(tmp_path: Path) -> None:
 
     from mcap.writer import Writer
 
-    import rig.topics as T  # noqa: N812 - short alias
+    import rig.core.topics as T  # noqa: N812 - short alias
 
     spec = T.spec_for_topic(T.gnss_bestvel("rx"))[0].schema
     with open(tmp_path / "hand.mcap", "wb") as f:

@@ -4,7 +4,7 @@ The struct comes from ``load_inputs(bounded_memory=True)`` (only the topics the 
 a batch of blocks at a time, keeping the whole bus's frames only as their clock readings) and from the
 reference and estimate alone (no manoeuvres, scores or steering reconstruction). Tolerance: none. The streamed
 CAN roles, the GNSS series and the sideslip struct equal the whole-session computation (``load_inputs`` and
-``rig.validate.validate_session``) bit for bit, with batches and slices forced far smaller than the session.
+``rig.evaluate.validate.validate_session``) bit for bit, with batches and slices forced far smaller than the session.
 The peak memory itself is measured by ``benchmarks/bench_export.py --formats mat+sideslip``.
 """
 
@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-import rig.sessiondata as sd
-from rig.dataset import Session, load_session
+import rig.data.inputs as sd
+from rig.data import Session, load_session
 from rig.export import export_mat
 from tests.dataset.synth import Synth
 from tests.dataset.synth import write_session as write_dataset_session
@@ -135,8 +135,8 @@ def test_export_sideslip_equals_validate_session(drive: Drive, tmp_path: Path, s
     memory on a one-hour session)."""
     import h5py
 
-    import rig.validate
-    from rig.validate import validate_session
+    import rig.evaluate.validate
+    from rig.evaluate.validate import validate_session
 
     sv = validate_session(drive.base)
     whole_can_frames = Session.can_frames
@@ -145,7 +145,7 @@ def test_export_sideslip_equals_validate_session(drive: Drive, tmp_path: Path, s
         raise AssertionError("the sideslip struct needs no whole-session CAN frames nor steering reconstruction")
 
     monkeypatch.setattr(Session, "can_frames", refuse)
-    monkeypatch.setattr(rig.validate, "reconstruct_steering", refuse)
+    monkeypatch.setattr(rig.evaluate.validate, "reconstruct_steering", refuse)
     report = export_mat(drive.base, tmp_path, topics=["gnss_*"])
     monkeypatch.setattr(Session, "can_frames", whole_can_frames)
     assert "sideslip" in report.files[0].source, report.warnings

@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-import rig.inspect as inspect_mod
-import rig.topics as T  # noqa: N812 - short alias
+import rig.core.topics as T  # noqa: N812 - short alias
+import rig.data.info as inspect_mod
 from rig.cli.main import app, main
-from rig.inspect import INFO_JSON_KEYS, ReadVia, format_info, info_to_json, read_session_info
-from rig.recorder import ProblemKind, Recorder, RecorderOptions, find_parts, recover, scan_part
+from rig.data.info import INFO_JSON_KEYS, ReadVia, format_info, info_to_json, read_session_info
+from rig.store import ProblemKind, Recorder, RecorderOptions, find_parts, recover, scan_part
 from tests.inspect.synth import CALIBRATION, CLOCKS, DT, GAP_EPOCHS, U0, Synth
 from vsccore.errors import SessionFileError
 
@@ -235,7 +235,7 @@ def test_damaged_message_index_falls_back_to_the_scan(synth: Synth, tmp_path: Pa
 
 def test_calibration_results_file_in_text_and_json(synth: Synth, tmp_path: Path) -> None:
     """``rig calibrate-baseline`` writes ``<base>.calibration.json``; ``rig info`` shows what it holds."""
-    from rig.sessiondata import calibration_file_path, update_calibration_file
+    from rig.data.inputs import calibration_file_path, update_calibration_file
 
     for p in find_parts(synth.base):
         shutil.copy(p, tmp_path / p.name)

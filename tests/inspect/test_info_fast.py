@@ -20,12 +20,12 @@ import pytest
 from mcap.reader import make_reader
 from typer.testing import CliRunner
 
-import rig.inspect as inspect_mod
-import rig.topics as T  # noqa: N812 - short alias used throughout the tests
+import rig.core.topics as T  # noqa: N812 - short alias used throughout the tests
+import rig.data.info as inspect_mod
 from rig.cli.main import main
-from rig.inspect import VerdictSource, format_info, info_to_json, read_session_info
-from rig.quality import Gap, StreamQuality, judge, verdict_lines
-from rig.recorder import Recorder, find_parts
+from rig.core.quality import Gap, StreamQuality, judge, verdict_lines
+from rig.data.info import VerdictSource, format_info, info_to_json, read_session_info
+from rig.store import Recorder, find_parts
 from tests.inspect.synth import U0, Synth
 from tests.recorder.helpers import options
 
@@ -75,7 +75,7 @@ def test_default_info_decompresses_only_event_and_timebase_chunks_and_never_load
 
     monkeypatch.setattr(inspect_mod, "decompress_chunk", counting)
     monkeypatch.setattr(inspect_mod, "scan_part", forbidden)
-    monkeypatch.setattr("rig.dataset.load_session", forbidden)
+    monkeypatch.setattr("rig.data.load_session", forbidden)
     main(["info", str(synth.base)])  # returns: exit status 0
     assert "time-base verdicts" in capsys.readouterr().out
     parts = {p.name: p for p in find_parts(synth.base)}
@@ -99,7 +99,7 @@ def _session_with_recorded_verdicts(tmp_path: Path) -> tuple[Path, dict[str, Str
         for k in range(100):
             t = U0 + k * 50_000_000
             src.put(T.gnss_bestpos("rover_a"), t, t, b'{"gps_time_ns": 0}')
-        # as rig.session writes it at the end of a recording
+        # as rig.record.recording writes it at the end of a recording
         rec.event(T.EventKind.TIMEBASE, "time-base verdicts at the end of the recording: can:vsc unusable",
                   log_time_ns=U0 + 5 * 10**9, verdicts={k: q.to_json() for k, q in verdicts.items()})
     return tmp_path / "rv", verdicts
@@ -141,7 +141,7 @@ def test_a_session_without_recorded_verdicts_says_so(synth: Synth) -> None:
 
 def test_rig_info_imports_no_heavy_library(synth: Synth) -> None:
     code = ("import json, sys\n"
-            "from rig.inspect import VerdictSource, format_info, read_session_info\n"
+            "from rig.data.info import VerdictSource, format_info, read_session_info\n"
             f"format_info(read_session_info({str(synth.base)!r}, verdicts=VerdictSource.RECORDED))\n"
             "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules})))")
     env = {**os.environ, "NO_COLOR": "1"}

@@ -10,15 +10,15 @@ from pathlib import Path
 import pytest
 
 from rig.live import LiveOptions, LiveView
-from rig.session import RecordSession
-from rig.simworld import SimRecording, record_simulated
+from rig.record.recording import Recording
+from rig.sim.world import SimRecording, record_simulated
 from tests.session.recording import FAST_RTK, config
 
 
 @dataclass
 class LiveRun:
     view: LiveView
-    session: RecordSession | None = None
+    session: Recording | None = None
     started: threading.Event = field(default_factory=threading.Event)
     stop: threading.Event = field(default_factory=threading.Event)
     finished: threading.Event = field(default_factory=threading.Event)
@@ -37,7 +37,7 @@ def run_live(tmp: Path, options: LiveOptions, drive: str = "step_steer:lead_s=1,
     cfg = config(drive, speed)
     run = LiveRun(LiveView(options))
 
-    def on_started(s: RecordSession) -> None:
+    def on_started(s: Recording) -> None:
         run.view.attach(s)
         run.session = s
         run.started.set()

@@ -10,13 +10,13 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from drivers.relay.endpoints import Secret
 from rig.cli.main import app
-from rig.demo import demo_config_path
 from rig.live import LiveFeed, LiveOptions
 from rig.live.feed import TOKEN_ENV
 from rig.live.page import StatusPage
+from rig.workflows.demo import demo_config_path
 from vsccore.errors import ConfigError
 
 

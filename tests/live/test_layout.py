@@ -11,10 +11,10 @@ from mcap.reader import make_reader
 from typer.testing import CliRunner
 
 from rig.cli.main import app
-from rig.demo import demo_config_path
 from rig.live import LIVE_TOPICS, LiveOptions
 from rig.live.layout import layout_json, message_paths, session_layout
-from rig.recorder.reader import find_parts
+from rig.store.reader import find_parts
+from rig.workflows.demo import demo_config_path
 from tests.live.conftest import run_live
 from tests.live.wsclient import Received, collect
 

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 
 _I64 = st.integers(min_value=0, max_value=2**63 - 1)
 

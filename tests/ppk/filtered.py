@@ -12,8 +12,8 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from drivers.novatel import FrameReader
-from rig.recorder import find_parts
-from rig.topics import gnss_raw
+from rig.core.topics import gnss_raw
+from rig.store import find_parts
 
 
 def _drop_spans(stream: bytes, names: set[str]) -> list[tuple[int, int]]:

@@ -79,10 +79,10 @@ ROVER_LOGS = [{"name": "BESTPOSB", "period_s": 0.05}, {"name": "BESTVELB", "peri
 def test_convbin_on_rig_export_of_a_recorded_session(tmp_path: Path) -> None:
     """`rig export --raw-gnss` of a simulated session whose rover logs RANGECMPB: convbin finds every epoch."""
     from drivers.novatel import FrameReader
-    from rig.config import load_session as load_config
-    from rig.demo import demo_config_path
+    from rig.core.config import load_session as load_config
     from rig.export import export_raw_gnss
-    from rig.simworld import record_simulated
+    from rig.sim.world import record_simulated
+    from rig.workflows.demo import demo_config_path
     from sim_devices.vehicle.scenarios import make_scenario
 
     cfg = load_config(demo_config_path(), {"simulation.speed": 2.0, "receivers.1.logs": ROVER_LOGS})

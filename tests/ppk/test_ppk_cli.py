@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 
 from drivers.novatel.rawobs import GloEphemeris
 from rig.cli.main import app, main
-from rig.ppk import (
+from rig.ppk.rtklib import (
     PPK_COLUMNS,
     PPK_METADATA_KEY,
     PpkQuality,
@@ -47,9 +47,9 @@ NO_GLO_B = ("rover_b: no GLOEPHEMERISB in the session; GLONASS not used for rove
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from rig.config import load_session as load_config
-    from rig.demo import demo_config_path
-    from rig.simworld import record_simulated
+    from rig.core.config import load_session as load_config
+    from rig.sim.world import record_simulated
+    from rig.workflows.demo import demo_config_path
     from sim_devices.vehicle.scenarios import make_scenario
 
     out = tmp_path_factory.mktemp("ppk_cli")
@@ -240,7 +240,7 @@ def test_base_position_is_the_reference_point_raised_by_the_antenna_height(tmp_p
     """RTCM 1006's antenna height (RINEX ANTENNA: DELTA H/E/N) goes up along the ellipsoid normal, as RTKLIB does."""
     import pymap3d
 
-    from rig.ppk import _approx_position
+    from rig.ppk.rtklib import _approx_position
 
     x, y, z = pymap3d.geodetic2ecef(48.7758, 9.1829, 347.9)
     header = (f"{'3.04':>9}{'':11}{'OBSERVATION DATA':<20}{'M: Mixed':<20}RINEX VERSION / TYPE\n"

@@ -27,12 +27,12 @@ from typer.testing import CliRunner
 
 from rig.analysis.reference import PositionSource, ReferenceSideslip
 from rig.cli.main import app
-from rig.config import load_session
-from rig.demo import demo_config_path
-from rig.ppk import PPK_COLUMNS, ppk_file_path, read_ppk_file
-from rig.sessiondata import SessionInputs, load_inputs
-from rig.simworld import SimWorld, record_simulated
-from rig.validate import validate_session, validation_lines
+from rig.core.config import load_session
+from rig.data.inputs import SessionInputs, load_inputs
+from rig.evaluate.validate import validate_session, validation_lines
+from rig.ppk.rtklib import PPK_COLUMNS, ppk_file_path, read_ppk_file
+from rig.sim.world import SimWorld, record_simulated
+from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, make_scenario, simulate
 
@@ -206,7 +206,7 @@ def test_ppk_reference_covers_the_dropout(dropout: Dropout) -> None:
 def test_validate_report_states_the_sources(dropout: Dropout, tmp_path: Path) -> None:
     import html
 
-    from rig.report import write_validation_report
+    from rig.evaluate.report import write_validation_report
 
     sv = validate_session(dropout.ppk)
     files = write_validation_report(sv, tmp_path / "report")
@@ -216,7 +216,7 @@ def test_validate_report_states_the_sources(dropout: Dropout, tmp_path: Path) ->
 def test_glonass_adds_satellites_and_is_at_least_as_good_as_gps_only(dropout: Dropout, tmp_path: Path) -> None:
     """The same session post-processed with GPS only (a copy, so its side file is its own): GPS + GLONASS has more
     satellites, fixes at least as many epochs, and its β RMS over the dropout is no worse (within 0.002°)."""
-    from rig.ppk import run_ppk
+    from rig.ppk.rtklib import run_ppk
 
     for part in dropout.path.parent.glob(dropout.path.name + ".*"):
         if not part.name.endswith(".ppk.parquet"):

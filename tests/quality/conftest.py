@@ -8,7 +8,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-import rig.topics as T  # noqa: N812 - short alias
+import rig.core.topics as T  # noqa: N812 - short alias
 from tests.quality.synth import NS, clean_session, rewrite
 
 IntArray = npt.NDArray[np.int64]

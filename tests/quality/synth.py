@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-import rig.topics as T  # noqa: N812 - short alias
-from rig.config import load_session as load_config
-from rig.recorder import Attachment, Recorder, RecorderOptions, find_parts, scan_part
+import rig.core.topics as T  # noqa: N812 - short alias
+from rig.core.config import load_session as load_config
+from rig.store import Attachment, Recorder, RecorderOptions, find_parts, scan_part
 from tests.calib_cli.synth import SIM_TOML, simulate_truth, straights, write_truth_session
 
 FrameEdit = Callable[[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64]],

@@ -6,8 +6,8 @@ import io
 
 from rich.console import Console
 
-from rig.dashboard import Dashboard, alarm_lines
-from rig.status import DeviceState, StatusBoard
+from rig.live.dashboard import Dashboard, alarm_lines
+from rig.record.status import DeviceState, StatusBoard
 from tests.recorder.helpers import T0, ManualClock
 
 

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from rig.inspect import format_info, info_to_json, read_session_info
-from rig.quality import Figure, StreamQuality, TimingQualityError, Verdict, gate, judge
+from rig.core.quality import Figure, StreamQuality, TimingQualityError, Verdict, gate, judge
+from rig.data.info import format_info, info_to_json, read_session_info
 from tests.calib_cli.synth import run_cli
 
 
@@ -82,8 +82,8 @@ def test_rig_info_shows_the_verdicts(sessions: dict[str, Path]) -> None:
 def test_a_degraded_stream_is_in_the_validation_headline_report_and_json(
     sessions: dict[str, Path], tmp_path: Path,
 ) -> None:
-    from rig.report import write_validation_report
-    from rig.validate import validate_session, validation_lines
+    from rig.evaluate.report import write_validation_report
+    from rig.evaluate.validate import validate_session, validation_lines
 
     sv = validate_session(sessions["jittery"], estimator="tests.quality.estimators:zero")
     (w,) = sv.timing_warnings

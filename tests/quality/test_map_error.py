@@ -1,9 +1,9 @@
 """The gate's timing figure is a bound of the map's error, not of the frames' latency (issue 15, H21).
 
 A CAN frame's time on the common base is its interface stamp through the device → host → GPS maps; how
-late the host read it does not enter. The figure (:meth:`rig.timebase.ClockEstimator.map_error_ns` of
-both maps plus :data:`rig.quality.FLOOR_ALLOWANCE_MS`) must stay at or above the true error and come
-near it; the previous figure (:meth:`~rig.timebase.ClockEstimator.envelope_error_ns`: the 95th
+late the host read it does not enter. The figure (:meth:`rig.core.timebase.ClockEstimator.map_error_ns` of
+both maps plus :data:`rig.core.quality.FLOOR_ALLOWANCE_MS`) must stay at or above the true error and come
+near it; the previous figure (:meth:`~rig.core.timebase.ClockEstimator.envelope_error_ns`: the 95th
 percentile, per second, of the lowest pair's height above the map) read every second whose frames were
 all late as map error and refused good sessions.
 """
@@ -17,10 +17,8 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from rig.config import load_session as load_config
-from rig.dataset import Session, load_session
-from rig.demo import demo_config_path
-from rig.quality import (
+from rig.core.config import load_session as load_config
+from rig.core.quality import (
     FLOOR_ALLOWANCE_MS,
     THRESHOLDS,
     Figure,
@@ -29,9 +27,11 @@ from rig.quality import (
     daq_causality_ns,
     session_verdicts,
 )
-from rig.simworld import record_simulated
-from rig.timebase import ClockEstimator, causality_bound_ns
-from rig.topics import EventKind
+from rig.core.timebase import ClockEstimator, causality_bound_ns
+from rig.core.topics import EventKind
+from rig.data import Session, load_session
+from rig.sim.world import record_simulated
+from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle.scenarios import make_scenario
 from tests.quality.synth import rewrite
@@ -119,7 +119,7 @@ def test_a_device_clock_step_is_map_error_and_rated_at_its_height() -> None:
 
 
 def test_the_bound_holds_on_both_sides_of_the_map() -> None:
-    """Module docstring of rig.quality: on each window, −h ≤ map − truth ≤ ε (ε: how late the window's most prompt
+    """Module docstring of rig.core.quality: on each window, −h ≤ map − truth ≤ ε (ε: how late the window's most prompt
     pair still was). With a floor that wanders by ±1 ms over tens of seconds, the true error stays inside."""
     t, host = _pairs(5)
     wander = (1 * MS * np.sin(2 * np.pi * t / (40 * NS))).astype(np.int64)

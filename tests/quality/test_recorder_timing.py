@@ -5,9 +5,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import rig.topics as T  # noqa: N812 - short alias
-from rig.recorder import Recorder, find_parts, scan_part
-from rig.topics import Event, EventKind
+import rig.core.topics as T  # noqa: N812 - short alias
+from rig.core.topics import Event, EventKind
+from rig.store import Recorder, find_parts, scan_part
 from tests.recorder.helpers import T0, ManualClock, options
 
 MS = 1_000_000

@@ -11,11 +11,11 @@ from pathlib import Path
 import can
 import pytest
 
-from rig.config import load_session as load_config
-from rig.demo import demo_config_path
-from rig.session import RecordSession, SessionSummary, summary_lines
-from rig.simworld import SimWorld
-from rig.topics import EventKind
+from rig.core.config import load_session as load_config
+from rig.core.topics import EventKind
+from rig.record.recording import Recording, RecordingSummary, summary_lines
+from rig.sim.world import SimWorld
+from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle.scenarios import make_scenario
 from tests.calib_cli.synth import run_cli
@@ -52,7 +52,7 @@ class StarvedBus(can.BusABC):
 
 
 @pytest.fixture(scope="module")
-def starved(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SessionSummary]:
+def starved(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, RecordingSummary]:
     out = tmp_path_factory.mktemp("starved")
     # the free-running clock: with the governed one the simulated ECU would wait for its reader (no starvation)
     cfg = load_config(demo_config_path(), {"simulation.speed": 1.0, "simulation.governed": False})
@@ -61,7 +61,7 @@ def starved(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SessionSumm
     world.start()
     try:
         assert world.clock is not None
-        session = RecordSession(
+        session = Recording(
             cfg, out_dir=out, name="starved", clock=world.clock, ports=world, daq_factory=world.daq_session,
             can_factory=lambda c: StarvedBus(world.can_bus(c), READ_DELAY_S), plugins=[world],
         )
@@ -78,7 +78,7 @@ def starved(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SessionSumm
     return out / "starved", summary
 
 
-def test_the_recording_reports_the_starved_can_stream_as_late(starved: tuple[Path, SessionSummary]) -> None:
+def test_the_recording_reports_the_starved_can_stream_as_late(starved: tuple[Path, RecordingSummary]) -> None:
     _base, summary = starved
     late_can = {t: s for t, s in summary.late.items() if t.startswith("/can/")}
     assert late_can, summary.late  # old code: no such report
@@ -88,11 +88,11 @@ def test_the_recording_reports_the_starved_can_stream_as_late(starved: tuple[Pat
     assert summary.verdicts["can:vsc"].verdict.value == "unusable", summary.verdicts["can:vsc"].message()
 
 
-def test_the_starved_stream_is_refused_on_its_timing_figure_too(starved: tuple[Path, SessionSummary]) -> None:
+def test_the_starved_stream_is_refused_on_its_timing_figure_too(starved: tuple[Path, RecordingSummary]) -> None:
     """Not only its early end: the frames' floor rose by seconds above the map, which the map cannot be checked
     against (the reader's backlog and a clock running away look alike), live and offline."""
-    from rig.dataset import load_session
-    from rig.quality import Verdict, session_verdicts
+    from rig.core.quality import Verdict, session_verdicts
+    from rig.data import load_session
 
     path, summary = starved
     for q in (summary.verdicts["can:vsc"], session_verdicts(load_session(path))["can:vsc"]):
@@ -101,8 +101,8 @@ def test_the_starved_stream_is_refused_on_its_timing_figure_too(starved: tuple[P
         assert timing.value > 100.0 and "can:vsc unusable: timing error" in q.message()
 
 
-def test_the_file_holds_the_early_end_as_a_gap_event(starved: tuple[Path, SessionSummary]) -> None:
-    from rig.dataset import load_session
+def test_the_file_holds_the_early_end_as_a_gap_event(starved: tuple[Path, RecordingSummary]) -> None:
+    from rig.data import load_session
 
     ds = load_session(starved[0])
     gaps = [e for _t, e in ds.events if e.kind is EventKind.GAP and e.details.get("gap") == "ended_early"]
@@ -114,7 +114,7 @@ def test_the_file_holds_the_early_end_as_a_gap_event(starved: tuple[Path, Sessio
 
 
 def test_rig_validate_exits_2_naming_the_can_stream(
-    starved: tuple[Path, SessionSummary], capsys: pytest.CaptureFixture[str],
+    starved: tuple[Path, RecordingSummary], capsys: pytest.CaptureFixture[str],
 ) -> None:
     assert run_cli(["validate", "--no-progress", str(starved[0])]) == 2
     err = capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""Per-stream time-base verdicts computed from what a session file holds (rig.quality.session_verdicts)."""
+"""Per-stream time-base verdicts computed from what a session file holds (rig.core.quality.session_verdicts)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from rig.dataset import load_session
-from rig.quality import (
+from rig.core.quality import (
     MIN_STALL_S,
     STALL_FACTOR,
     THRESHOLDS,
@@ -18,6 +17,7 @@ from rig.quality import (
     judge,
     session_verdicts,
 )
+from rig.data import load_session
 
 MS = 1_000_000
 NS = 1_000_000_000

@@ -9,8 +9,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import rig.topics as T  # noqa: N812 - short alias used throughout the tests
-from rig.recorder import Recorder, RecorderOptions
+import rig.core.topics as T  # noqa: N812 - short alias used throughout the tests
+from rig.store import Recorder, RecorderOptions
 
 
 def main() -> None:

@@ -10,7 +10,7 @@ from typing import IO, Any
 
 from mcap.reader import make_reader
 
-from rig.recorder import RecorderOptions
+from rig.store import RecorderOptions
 
 T0 = 1_700_000_000_000_000_000
 """A host time (ns since the Unix epoch) to start fake clocks at."""

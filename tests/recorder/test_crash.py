@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-import rig.topics as T  # noqa: N812 - short alias used throughout the tests
-from rig.recorder import ProblemKind, recover, scan_part
+import rig.core.topics as T  # noqa: N812 - short alias used throughout the tests
+from rig.store import ProblemKind, recover, scan_part
 from tests.recorder.helpers import read_with_mcap
 
 REPO = Path(__file__).resolve().parents[2]
@@ -70,7 +70,7 @@ def test_rig_recover_command(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
     from rig.cli.main import app
-    from rig.recorder import Recorder
+    from rig.store import Recorder
     from tests.recorder.helpers import T0, options
 
     with Recorder(tmp_path, "r", options=options(chunk_size=2000)) as rec:

@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import rig.topics as T  # noqa: N812 - short alias used throughout the tests
+import rig.core.topics as T  # noqa: N812 - short alias used throughout the tests
 from rig.cli.main import app
-from rig.dataset import load_session
-from rig.inspect import read_session_info
-from rig.recorder import ProblemKind, Recorder, finalize_in_place, recover, scan_part
-from rig.recorder.reader import _MSG, _REC, ChunkInfo, DamageKind, PartScan, decompress_chunk
+from rig.data import load_session
+from rig.data.info import read_session_info
+from rig.store import ProblemKind, Recorder, finalize_in_place, recover, scan_part
+from rig.store.reader import _MSG, _REC, ChunkInfo, DamageKind, PartScan, decompress_chunk
 from tests.recorder.helpers import T0, limited_opener, options, read_with_mcap
 from vsccore.errors import DiskFullError
 
@@ -439,13 +439,13 @@ def test_stale_reserve_is_removed_by_the_next_recording_and_by_recover(recorded:
 
 
 def test_free_space_refusal_comes_before_device_setup(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import rig.simworld
-    from rig.demo import demo_config_path
+    import rig.sim.world
+    from rig.workflows.demo import demo_config_path
 
     def no_setup(*_a: object, **_k: object) -> None:
         raise AssertionError("the simulated world was set up before the free-space check")
 
-    monkeypatch.setattr(rig.simworld.SimWorld, "start", no_setup)
+    monkeypatch.setattr(rig.sim.world.SimWorld, "start", no_setup)
     res = CliRunner().invoke(app, ["sim", "record", str(demo_config_path()), "--out", str(tmp_path / "o"),
                                    "--set", "output.min_free_disk_mb=1e12", "--no-dashboard"])
     assert isinstance(res.exception, DiskFullError), res.output

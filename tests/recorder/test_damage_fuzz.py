@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.recorder import recover, scan_part
-from rig.recorder.reader import DamageKind
+from rig.store import recover, scan_part
+from rig.store.reader import DamageKind
 from tests.recorder.helpers import read_with_mcap
 from tests.recorder.test_damage import Recorded, got_messages, recorded  # noqa: F401 - the fixture
 

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-import rig.topics as T  # noqa: N812 - short alias used throughout the tests
-from rig.recorder import ProblemKind, Recorder, finalize_in_place, find_parts, scan_part, session_base
-from rig.topics import topics_markdown
+import rig.core.topics as T  # noqa: N812 - short alias used throughout the tests
+from rig.core.topics import topics_markdown
+from rig.store import ProblemKind, Recorder, finalize_in_place, find_parts, scan_part, session_base
 from tests.recorder.helpers import T0, options, read_with_mcap
 from vsccore.errors import SessionFileError
 
@@ -128,14 +128,14 @@ def test_readme_topics_table_matches_the_module() -> None:
     assert "## Topics" in readme
     section = readme.split("\n## Topics", 1)[1].split("\n## ", 1)[0]
     table = "\n".join(line for line in section.splitlines() if line.startswith("|"))
-    stale = "README Topics table is stale: regenerate it from rig.topics.topics_markdown()"
+    stale = "README Topics table is stale: regenerate it from rig.core.topics.topics_markdown()"
     assert table + "\n" == topics_markdown(), stale
     for spec in T.TOPICS:
         assert f"`{spec.pattern}`" in table
 
 
 def test_recover_refuses_to_overwrite(small_part: Path, tmp_path: Path) -> None:
-    from rig.recorder import recover
+    from rig.store import recover
 
     src = tmp_path / "x.000.mcap"
     shutil.copy(small_part, src)

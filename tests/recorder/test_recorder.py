@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import rig.topics as T  # noqa: N812 - short alias used throughout the tests
-from rig.recorder import Attachment, Recorder, find_parts, scan_part, session_metadata
-from rig.topics import METADATA_PART_END, METADATA_RECORDER, METADATA_SESSION, Event, EventKind
+import rig.core.topics as T  # noqa: N812 - short alias used throughout the tests
+from rig.core.topics import METADATA_PART_END, METADATA_RECORDER, METADATA_SESSION, Event, EventKind
+from rig.store import Attachment, Recorder, find_parts, scan_part, session_metadata
 from tests.recorder.helpers import T0, GatedFile, ManualClock, limited_opener, options, read_with_mcap
 from tests.waiting import wait_until
 from vsccore import __version__
@@ -73,7 +73,7 @@ def test_mixed_session_reads_back_exactly_with_mcap_reader(tmp_path: Path) -> No
     assert kinds[0] is EventKind.SESSION_START and kinds[-1] is EventKind.SESSION_STOP
     assert mcap_summary is not None
     assert mcap_summary.statistics.message_count == len(expected) + 2
-    # each channel carries its schema from rig.topics
+    # each channel carries its schema from rig.core.topics
     by_topic = {c.topic: mcap_summary.schemas[c.schema_id] for c in mcap_summary.channels.values()}
     assert by_topic[T.can_frames("can0")].name == "vsc_rig.can.FrameBlock"
     assert by_topic[T.gnss_bestpos("rover_a")].encoding == T.JSON_SCHEMA_ENCODING

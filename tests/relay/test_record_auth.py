@@ -8,11 +8,11 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
-from rig import topics as T  # noqa: N812 - topics used as a namespace
-from rig.dataset import load_session
-from rig.session import RecordSession
-from rig.simworld import record_simulated
-from rig.status import DeviceState, SessionStatus
+from rig.core import topics as T  # noqa: N812 - topics used as a namespace
+from rig.data import load_session
+from rig.record.recording import Recording
+from rig.record.status import DeviceState, SessionStatus
+from rig.sim.world import record_simulated
 from tests.relay.test_integrity import BareStatusCaster
 from tests.session.recording import FAST_RTK, config
 
@@ -24,7 +24,7 @@ def test_a_refused_correction_login_in_rig_record_is_an_event_and_a_dashboard_al
     snapshots: list[SessionStatus] = []
     lock = threading.Lock()
 
-    def tick(s: RecordSession) -> None:
+    def tick(s: Recording) -> None:
         snap = s.board.snapshot(s.clock.now_ns())
         with lock:
             snapshots.append(snap)

@@ -24,7 +24,7 @@ from drivers.relay import (
     open_source,
 )
 from drivers.relay.endpoints import FileEndpoint
-from rig.topics import SCHEMA_RELAY_STATS, validate_json
+from rig.core.topics import SCHEMA_RELAY_STATS, validate_json
 from tests.relay.helpers import NOVATEL_RTCA_BLOCK, PtyPeer, base_epoch, cmr_by_hand
 from vsccore.clock import ScaledClock
 

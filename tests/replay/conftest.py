@@ -9,11 +9,11 @@ from pathlib import Path
 import can.interfaces.virtual as virtual
 import pytest
 
-from rig.config import load_session as load_config
-from rig.dataset import Session, load_session
-from rig.demo import demo_config_path
-from rig.replay import realtime_priority
-from rig.simworld import record_simulated
+from rig.core.config import load_session as load_config
+from rig.data import Session, load_session
+from rig.replay.player import realtime_priority
+from rig.sim.world import record_simulated
+from rig.workflows.demo import demo_config_path
 from sim_devices.vehicle.scenarios import make_scenario
 from tests.session.recording import FAST_RTK
 from vsccore.errors import ConfigError

@@ -19,11 +19,11 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-import rig.topics as T  # noqa: N812 - short alias
+import rig.core.topics as T  # noqa: N812 - short alias
 from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusSession, CanFrame, CanFrameFlag
-from rig.dataset import Session, load_session
-from rig.recorder import Attachment, Recorder, RecorderOptions, session_metadata
-from rig.replay import realtime_priority
+from rig.data import Session, load_session
+from rig.replay.player import realtime_priority
+from rig.store import Attachment, Recorder, RecorderOptions, session_metadata
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from vsccore.clock import SystemClock
 

@@ -6,7 +6,7 @@ import pytest
 
 from drivers.can.bus import CanBusConfig
 from rig.cli.main import main
-from rig.dataset import Session
+from rig.data import Session
 from tests.replay.receiver import ReceivingRecorder
 
 

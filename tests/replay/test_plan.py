@@ -10,8 +10,8 @@ import pytest
 
 from drivers.can.checks import FrameFlag, VwMqbCrc8
 from drivers.can.vector_decode import FrameBatch, VectorRoleDecoder
-from rig.dataset import Session
-from rig.replay import Fault, FaultKind, ReplayPlan, build_plan, parse_bus_spec, parse_fault, parse_id
+from rig.data import Session
+from rig.replay.player import Fault, FaultKind, ReplayPlan, build_plan, parse_bus_spec, parse_fault, parse_id
 from vsccore.errors import AnalysisError, ConfigError
 
 CRC = VwMqbCrc8()
@@ -79,7 +79,7 @@ def test_bus_specs() -> None:
 
 
 def test_bus_spec_from_a_session_configuration() -> None:
-    from rig.demo import demo_config_path
+    from rig.workflows.demo import demo_config_path
 
     cfg = parse_bus_spec(str(demo_config_path()))
     assert (cfg.interface, cfg.channel, cfg.bitrate) == ("virtual", "vsc-sim", 500_000)

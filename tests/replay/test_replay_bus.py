@@ -25,12 +25,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import rig.topics as T  # noqa: N812 - short alias
+import rig.core.topics as T  # noqa: N812 - short alias
 from drivers.can.bus import CanBusConfig
 from drivers.can.checks import FrameFlag
 from drivers.can.vector_decode import VectorRoleDecoder
-from rig.dataset import Session
-from rig.replay import ReplayPlan, ReplayStats, build_plan, parse_bus_spec, parse_fault, replay_session
+from rig.data import Session
+from rig.replay.player import ReplayPlan, ReplayStats, build_plan, parse_bus_spec, parse_fault, replay_session
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from tests.replay.conftest import fifo_allowed
 from tests.replay.receiver import ReceivingRecorder, ReceivingSide

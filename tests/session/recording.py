@@ -16,11 +16,11 @@ import numpy as np
 import numpy.typing as npt
 from scipy.signal import lfilter
 
-from rig.config import SessionConfig, load_session
-from rig.dataset import Session, align
-from rig.dataset import load_session as load_recording
-from rig.demo import demo_config_path
-from rig.simworld import SimRecording, record_simulated
+from rig.core.config import SessionConfig, load_session
+from rig.data import Session, align
+from rig.data import load_session as load_recording
+from rig.sim.world import SimRecording, record_simulated
+from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle.truth import GroundTruth
 from vsccore.gpstime import gps_ns_to_unix_ns

@@ -3,7 +3,7 @@
 The simulated DAQ is unplugged and plugged back mid-session (a new acquisition whose sample index
 restarts and whose file index after the gap is only a host-time estimate). The recorder's live
 times of the DAQ blocks are scored against the simulator's true sample clock of each acquisition;
-the session's warnings reaching :class:`rig.sessiondata.SessionInputs` are checked on the same file.
+the session's warnings reaching :class:`rig.data.inputs.SessionInputs` are checked on the same file.
 """
 
 from __future__ import annotations
@@ -14,22 +14,22 @@ from typing import Any
 import numpy as np
 import pytest
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
-from rig.dataset import load_session
-from rig.session import RecordSession
-from rig.sessiondata import load_inputs
-from rig.simworld import SimRecording, SimWorld, record_simulated
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
+from rig.data import load_session
+from rig.data.inputs import load_inputs
+from rig.record.recording import Recording
+from rig.sim.world import SimRecording, SimWorld, record_simulated
 from tests.session.recording import FAST_RTK, config
 from vsccore.gpstime import gps_ns_to_unix_ns
 
 MS = 1_000_000
 
 
-def _unplug_daq(world: SimWorld, _s: RecordSession) -> None:
+def _unplug_daq(world: SimWorld, _s: Recording) -> None:
     world.daq_link.unplug()
 
 
-def _replug_daq(world: SimWorld, _s: RecordSession) -> None:
+def _replug_daq(world: SimWorld, _s: Recording) -> None:
     world.daq_link.replug()
 
 
@@ -38,9 +38,9 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SimRecordi
     out = tmp_path_factory.mktemp("daq_align")
     cfg = config("straight:duration_s=9,speed_kmh=40", 2.0)
     bases: dict[int, int] = {}
-    sessions: list[RecordSession] = []
+    sessions: list[Recording] = []
 
-    def tick(s: RecordSession) -> None:
+    def tick(s: Recording) -> None:
         if not sessions:
             sessions.append(s)
 

@@ -16,8 +16,8 @@ from typing import Any
 
 import pytest
 
-from rig.simworld import SimWorld
-from rig.topics import EventKind, Severity
+from rig.core.topics import EventKind, Severity
+from rig.sim.world import SimWorld
 from tests.session.recording import FAST_RTK, config
 
 

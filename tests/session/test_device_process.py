@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import rig.topics as T  # noqa: N812
-from rig.dataset import load_session as load_recording
-from rig.demo import demo_config_path
-from rig.simworld import record_simulated
+import rig.core.topics as T  # noqa: N812
+from rig.data import load_session as load_recording
+from rig.sim.world import record_simulated
+from rig.workflows.demo import demo_config_path
 from tests.session.recording import FAST_RTK, config, gnss_min_latency_s
 from vsccore.errors import SimulationError
 

@@ -8,36 +8,36 @@ from pathlib import Path
 
 import numpy as np
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
-from rig.dataset import load_session
-from rig.session import RecordSession
-from rig.simworld import SimWorld, record_simulated
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
+from rig.data import load_session
+from rig.record.recording import Recording
+from rig.sim.world import SimWorld, record_simulated
 from tests.session.recording import FAST_RTK, config
 
 MS = 1_000_000
 
 
-def _unplug_rover(world: SimWorld, _s: RecordSession) -> None:
+def _unplug_rover(world: SimWorld, _s: Recording) -> None:
     world.receivers["rover_b"].unplug()
 
 
-def _replug_rover(world: SimWorld, _s: RecordSession) -> None:
+def _replug_rover(world: SimWorld, _s: Recording) -> None:
     world.receivers["rover_b"].replug()
 
 
-def _unplug_daq(world: SimWorld, _s: RecordSession) -> None:
+def _unplug_daq(world: SimWorld, _s: Recording) -> None:
     world.daq_link.unplug()
 
 
-def _replug_daq(world: SimWorld, _s: RecordSession) -> None:
+def _replug_daq(world: SimWorld, _s: Recording) -> None:
     world.daq_link.replug()
 
 
-def _unplug_can(world: SimWorld, _s: RecordSession) -> None:
+def _unplug_can(world: SimWorld, _s: Recording) -> None:
     world.can_link.unplug()
 
 
-def _replug_can(world: SimWorld, _s: RecordSession) -> None:
+def _replug_can(world: SimWorld, _s: Recording) -> None:
     world.can_link.replug()
 
 

@@ -1,4 +1,4 @@
-"""The dashboard's live LTR (rig.session_devices.LiveLtr): the roll model and AR prediction on its last seconds
+"""The dashboard's live LTR (rig.analysis.live_ltr.LiveLtr): the roll model and AR prediction on its last seconds
 of CAN lateral acceleration, the prediction of the newest epochs only (the same figures as over the whole
 window), computed again only when samples came."""
 
@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.config import load_session
-from rig.session_devices import LiveLtr
+from rig.analysis.live_ltr import LiveLtr
+from rig.core.config import load_session
 from sim_devices.vehicle import make_scenario, simulate
 
 REPO = Path(__file__).resolve().parents[2]
@@ -20,7 +20,7 @@ CFG = load_session(REPO / "examples" / "sim.toml")
 
 def test_live_figures_are_the_offline_ones_and_come_again_only_with_new_samples() -> None:
     tr = simulate(make_scenario("fishhook"), rate_hz=100.0)
-    live = LiveLtr(CFG)
+    live = LiveLtr(CFG.profile.vehicle)
     t_ns = np.round(tr.t * 1e9).astype(np.int64)
     ay = 1.6 * np.asarray(tr.ay_meas, dtype=np.float64)  # harder than the sim car's fishhook: LTR through 0.9
     warned = compared = 0

@@ -1,4 +1,4 @@
-"""RecordSession pieces that need no simulated world: receiver commands, operator marks, a device
+"""Recording pieces that need no simulated world: receiver commands, operator marks, a device
 that cannot be opened (an event, the session records on)."""
 
 from __future__ import annotations
@@ -7,11 +7,12 @@ import threading
 from pathlib import Path
 
 from drivers.can.bus import CanFrame, CanFrameFlag, TimestampSource
-from rig.config import CanConfig, SessionConfig, load_session
-from rig.dataset import load_session as load_recording
-from rig.demo import demo_config_path
-from rig.session import RecordSession, receiver_commands
-from rig.topics import EventKind, Severity
+from rig.core.config import CanConfig, SessionConfig, load_session
+from rig.core.topics import EventKind, Severity
+from rig.data import load_session as load_recording
+from rig.record.gnss import receiver_commands
+from rig.record.recording import Recording
+from rig.workflows.demo import demo_config_path
 
 
 def _config() -> SessionConfig:
@@ -40,7 +41,7 @@ def test_marks_and_a_device_that_cannot_open(tmp_path: Path) -> None:
     bad = CanConfig(name="chassis", interface="no_such_interface", channel="can9", dbc=cfg.can[0].dbc)
     cfg = cfg.model_copy(update={"receivers": (), "relay": None, "daq": None, "simulation": None,
                                  "can": (cfg.can[0].model_copy(update={"channel": "vsc-unit"}), bad)})
-    session = RecordSession(cfg, out_dir=tmp_path, name="unit")
+    session = Recording(cfg, out_dir=tmp_path, name="unit")
     session.start()
     try:
         host = session.clock.now_ns()
@@ -60,12 +61,12 @@ def test_marks_and_a_device_that_cannot_open(tmp_path: Path) -> None:
     assert any(e.kind is EventKind.CONNECT and e.source == "can.vsc" for e in events)
 
 
-def _can_only_session(tmp_path: Path, channel: str) -> RecordSession:
+def _can_only_session(tmp_path: Path, channel: str) -> Recording:
     """A started recording session of the demo's CAN bus alone, on virtual channel ``channel``."""
     cfg = _config()
     cfg = cfg.model_copy(update={"receivers": (), "relay": None, "daq": None, "simulation": None,
                                  "can": (cfg.can[0].model_copy(update={"channel": channel}),)})
-    session = RecordSession(cfg, out_dir=tmp_path, name="unit")
+    session = Recording(cfg, out_dir=tmp_path, name="unit")
     session.start()
     return session
 

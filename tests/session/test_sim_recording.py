@@ -16,12 +16,12 @@ import pymap3d
 import pytest
 from mcap.reader import make_reader
 
-import rig.topics as T  # noqa: N812 - topics used as a namespace
+import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from drivers.analog import AnalogChannelSpec
 from drivers.daq import find_edges
 from drivers.optical import OpticalSensorSpec
-from rig.dataset import align
-from rig.dataset import load_session as load_recording
+from rig.data import align
+from rig.data import load_session as load_recording
 from sim_devices.vehicle.geodesy import point_geodetic
 from sim_devices.vsc_ecu import VscEcuConfig
 from sim_devices.vsc_ecu import frames as ecu_frames
@@ -317,7 +317,7 @@ def test_optical_samples_held_at_one_log_time_do_not_refuse_the_session(run: Rec
     going (it refused with "optical.t not strictly increasing") and say what it left out."""
     from mcap.writer import Writer
 
-    from rig.sessiondata import load_inputs
+    from rig.data.inputs import load_inputs
 
     src = sorted(run.rec.summary.recording.parts)[0]
     copy = tmp_path / src.name

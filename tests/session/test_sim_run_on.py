@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rig.dataset import load_session as load_recording
-from rig.quality import backward_steps
-from rig.simworld import record_simulated
+from rig.core.quality import backward_steps
+from rig.data import load_session as load_recording
+from rig.sim.world import record_simulated
 from tests.session.recording import FAST_RTK, config
 
 END_BOUND_S = 0.2

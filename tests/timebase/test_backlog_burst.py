@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.timebase import ClockEstimator
+from rig.core.timebase import ClockEstimator
 
 MS = 1_000_000
 S = 1_000_000_000

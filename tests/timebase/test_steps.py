@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.timebase import ClockEstimator, Timebase
+from rig.core.timebase import ClockEstimator, Timebase
 from vsccore.gpstime import GPS_EPOCH_UNIX_NS
 
 MS = 1_000_000

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from drivers.daq.sync import find_edges
-from rig.timebase import ClockEstimator, ClockMap, FitStatus, Timebase, align_sync_pulses, envelope_line
+from rig.core.timebase import ClockEstimator, ClockMap, FitStatus, Timebase, align_sync_pulses, envelope_line
 from vsccore.errors import AnalysisError
 from vsccore.gpstime import gps_ns_to_unix_ns, gps_to_ns
 

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import pytest
 
-from rig.config import load_session
-from rig.demo import demo_config_path
-from rig.session import RecordSession
-from rig.simworld import SimRecording, SimWorld, record_simulated
+from rig.core.config import load_session
+from rig.record.recording import Recording
+from rig.sim.world import SimRecording, SimWorld, record_simulated
+from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, make_scenario, simulate
 
@@ -62,10 +62,10 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Recorded:
                      initial_heading_deg=sim.initial_heading_deg, seed=sim.seed)
     t_j = _segment_start(truth, "j_turn", "j_turn")
 
-    def mark(_world: SimWorld, session: RecordSession) -> None:
+    def mark(_world: SimWorld, session: Recording) -> None:
         session.mark("j_turn")
 
-    def end(_world: SimWorld, session: RecordSession) -> None:
+    def end(_world: SimWorld, session: Recording) -> None:
         session.mark("end")
 
     out = tmp_path_factory.mktemp("validate_cli")

@@ -3,7 +3,7 @@
 ``ideal`` returns the simulator's true sideslip at the times it is called with, ``late_and_high`` the
 truth 0.2 s late and 0.5° high. An estimator only receives the CAN roles, so these read the truth
 of the session named by the environment variable ``RIG_TEST_SESSION`` (set by the tests) on the
-same time base (:func:`rig.sessiondata.load_inputs`).
+same time base (:func:`rig.data.inputs.load_inputs`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from rig.sessiondata import load_inputs
+from rig.data.inputs import load_inputs
 
 DELAY_S = 0.2
 BIAS_DEG = 0.5

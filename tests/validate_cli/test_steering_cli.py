@@ -110,7 +110,7 @@ def test_help_shows_the_units_and_per_tyre_wording() -> None:
 def test_recorded_dlc_reconstruction_to_the_published_figure(recorded: Recorded) -> None:
     """Issue 16 §3: on a recorded session (GNSS speed, CAN a_y with the ECU's bias and noise) the DLC at 50 km/h
     is reconstructed within 0.3° and 8 % at the peaks (the steady-state formula gave 0.51–0.60° / 7.9–10.9 %)."""
-    from rig.sessiondata import load_inputs
+    from rig.data.inputs import load_inputs
 
     tr = recorded.truth
     offset = float(load_inputs(recorded.path, can=False, optical=False).require_truth().t_s[0] - tr.t[0])
@@ -136,10 +136,10 @@ def test_reconstruct_removes_the_calibrated_sas_zero(recorded: Recorded, tmp_pat
     the simulated sensor reads 0.8° high, 0.05° of road-wheel angle, and the mean signed error goes with it."""
     import shutil
 
-    from rig.config import load_session
-    from rig.demo import demo_config_path
-    from rig.sessiondata import update_calibration_file
-    from rig.validate import steering_session
+    from rig.core.config import load_session
+    from rig.data.inputs import update_calibration_file
+    from rig.evaluate.validate import steering_session
+    from rig.workflows.demo import demo_config_path
 
     sim = load_session(demo_config_path()).simulation
     assert sim is not None

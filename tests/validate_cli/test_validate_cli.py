@@ -23,7 +23,7 @@ import pytest
 from typer.testing import CliRunner
 
 from rig.cli.main import app, main
-from rig.dataset import load_session
+from rig.data import load_session
 from tests.validate_cli import estimators
 from tests.validate_cli.conftest import MARK_LEAD_S, Recorded
 
@@ -108,7 +108,7 @@ def test_manoeuvres_automatic_and_marked(vsc_run: tuple[int, dict[str, Any], Pat
 
 def _truth_offset(recorded: Recorded) -> float:
     """Truth t = 0 on the session's time base (s since the first common GNSS epoch)."""
-    from rig.sessiondata import load_inputs
+    from rig.data.inputs import load_inputs
 
     inp = load_inputs(recorded.path, can=False, optical=False)
     tr = inp.require_truth()

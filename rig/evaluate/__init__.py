@@ -1,0 +1,1 @@
+"""Evaluation of a session: validate, rollover, steering, calibrate, report (a session in, results out)."""

@@ -1,0 +1,1 @@
+"""Post-processed kinematic solutions: RTKLIB runs and RINEX writing."""

@@ -1,0 +1,1 @@
+"""HIL replay of a session's CAN frames onto a bus."""

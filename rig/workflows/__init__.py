@@ -1,0 +1,1 @@
+"""Workflows of many stages or many sessions: the demo, the campaign."""
