@@ -42,7 +42,10 @@ TARGET_RSS_MB = 1024.0
 _CHILD = """
 import resource
 import sys
-from rig.export import export_csv, export_mat, export_mdf4, export_parquet
+from rig.export.csv import export_csv
+from rig.export.mat import export_mat
+from rig.export.mdf4 import export_mdf4
+from rig.export.parquet import export_parquet
 fmt = sys.argv[1]
 fn = {"parquet": export_parquet, "mdf4": export_mdf4, "mat": export_mat, "mat5": export_mat, "mat+sideslip": export_mat,
       "csv": export_csv}[fmt]

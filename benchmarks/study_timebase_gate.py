@@ -19,7 +19,7 @@ For every session and stream it prints:
 - ``floor``: the figure of H21 (:meth:`ClockEstimator.map_error_ns`: the highest the latency floor held
   above the map for 5 s on end, plus :data:`rig.core.quality.FLOOR_ALLOWANCE_MS`);
 - ``new``: the figure the gate now uses: ``floor`` plus the DAQ's causality bound of the host map
-  (:func:`rig.core.quality.daq_causality_ns`: how much earlier than their sync-timed last samples the map puts
+  (:func:`rig.data.verdicts.daq_causality_ns`: how much earlier than their sync-timed last samples the map puts
   the DAQ blocks' arrivals, held in three half-seconds of 10 s), printed on its own line beside the host
   map's true error (its median: the constant offset it is meant to see);
 - ``truth``: max and 95th percentile of |time on the common base − true time| over the frames
@@ -44,9 +44,10 @@ import numpy as np
 
 from rig.core.config import SessionConfig
 from rig.core.config import load_session as load_config
-from rig.core.quality import FLOOR_ALLOWANCE_MS, daq_causality_ns, session_verdicts
+from rig.core.quality import FLOOR_ALLOWANCE_MS
 from rig.core.timebase import ClockEstimator
 from rig.data import Session, load_session
+from rig.data.verdicts import daq_causality_ns, session_verdicts
 from rig.record.recording import Recording
 from rig.sim.world import SimWorld, record_simulated, timing_vs_truth
 from rig.workflows.demo import demo_config_path

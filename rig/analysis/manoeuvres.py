@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from rig.analysis._arrays import as_1d, check_time, runs
+from rig.analysis.arrays import as_1d, check_time, runs
 from rig.analysis.metrics import Tolerances, ValidationMetrics, compare
 from vsccore.angles import FloatArray
 from vsccore.errors import AnalysisError

@@ -23,7 +23,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import signal
 
-from rig.analysis._arrays import as_1d, as_bool, check_time
+from rig.analysis.arrays import as_1d, as_bool, check_time
 from vsccore.angles import FloatArray, wrap_pi
 from vsccore.errors import AnalysisError
 

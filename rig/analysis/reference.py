@@ -65,7 +65,7 @@ import numpy.typing as npt
 import pymap3d
 
 from calibration.mount import apply_mount_offset, apply_optical_zero
-from rig.analysis._arrays import BoolArray, as_1d, as_bool, check_time, runs
+from rig.analysis.arrays import BoolArray, as_1d, as_bool, check_time, runs
 from rig.analysis.smoothing import rts_smooth3, wavelet_denoise
 from vsccore.angles import (
     FloatArray,

@@ -82,7 +82,7 @@ import numpy as np
 import numpy.typing as npt
 from statsmodels.tsa.ar_model import ar_select_order
 
-from rig.analysis._arrays import as_1d, check_time, runs
+from rig.analysis.arrays import as_1d, check_time, runs
 from vsccore.angles import FloatArray
 from vsccore.errors import AnalysisError
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from rig.analysis._arrays import as_1d, check_time
+from rig.analysis.arrays import as_1d, check_time
 from rig.analysis.manoeuvres import (
     Manoeuvre,
     ManoeuvreKind,

@@ -35,7 +35,7 @@ import numpy.typing as npt
 import pywt
 from scipy import signal
 
-from rig.analysis._arrays import as_1d, runs
+from rig.analysis.arrays import as_1d, runs
 from vsccore.angles import FloatArray
 from vsccore.errors import AnalysisError
 

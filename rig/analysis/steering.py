@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from rig.analysis._arrays import BoolArray, as_1d, check_time, split_at_gaps
+from rig.analysis.arrays import BoolArray, as_1d, check_time, split_at_gaps
 from vsccore.angles import FloatArray
 from vsccore.errors import AnalysisError
 

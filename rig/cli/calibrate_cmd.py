@@ -80,7 +80,8 @@ def calibrate_baseline_cmd(
     slip-angle zero from the same runs. The result is recorded in <session>.calibration.json (later
     commands use it) unless --no-record; --write PROFILE puts it into the vehicle profile.
     """
-    from rig.data.inputs import load_inputs, update_calibration_file
+    from rig.data.inputs import load_inputs
+    from rig.data.sidefiles import update_calibration_file
     from rig.evaluate.calibrate import (
         BaselineOptions,
         baseline_record,
@@ -146,7 +147,8 @@ def calibrate_steering_ratio_cmd(
     and the lever arms, fits a circle (least squares), and converts its radius R to the road-wheel
     angle δ = atan(L/R).
     """
-    from rig.data.inputs import load_inputs, update_calibration_file
+    from rig.data.inputs import load_inputs
+    from rig.data.sidefiles import update_calibration_file
     from rig.evaluate.calibrate import (
         SteeringOptions,
         calibrate_steering_ratio,
@@ -247,7 +249,7 @@ def calibrate_imu_cmd(
     comments. The result corrects the recorded CAN yaw_rate (gyro z), lat_accel (accel y) and
     long_accel (accel x) per axis.
     """
-    from rig.data.inputs import update_calibration_file
+    from rig.data.sidefiles import update_calibration_file
     from rig.evaluate.calibrate import (
         calibrate_imu,
         format_imu,

@@ -15,7 +15,7 @@ import typer
 from vsccore.errors import ConfigError
 
 if TYPE_CHECKING:
-    from rig.export import ExportReport
+    from rig.export.files import ExportReport
 
 _FILE_HELP = "A session part (NAME.NNN.mcap), the session base path (DIR/NAME) or a directory holding one session."
 
@@ -51,7 +51,7 @@ def info(
 
 def _print_report(report: ExportReport) -> None:
     from rig.data.info import format_utc
-    from rig.export import ExportKind
+    from rig.export.files import ExportKind
 
     for f in report.files:
         if f.kind is ExportKind.TABLE:
@@ -126,15 +126,12 @@ def export(
     ] = "7.3",
 ) -> None:
     """Get data out of a session: CANape/asammdf, pandas/Polars/DuckDB, MATLAB, RTKLIB, NovAtel tools, spreadsheets."""
-    from rig.export import (
-        ExportKind,
-        export_csv,
-        export_mat,
-        export_mdf4,
-        export_parquet,
-        export_raw_gnss,
-        rtklib_format,
-    )
+    from rig.export.csv import export_csv
+    from rig.export.files import ExportKind
+    from rig.export.mat import export_mat
+    from rig.export.mdf4 import export_mdf4
+    from rig.export.parquet import export_parquet
+    from rig.export.raw_gnss import export_raw_gnss, rtklib_format
 
     if raw_gnss is None and csv_dir is None and fmt is None:
         raise ConfigError("rig export: say what to export: --format mdf4|parquet|mat|csv [--out DIR], "

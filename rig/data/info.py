@@ -67,34 +67,25 @@ where a value is unknown:
 from __future__ import annotations
 
 import json
-import mmap
-import os
-import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from enum import StrEnum
-from io import BytesIO
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from mcap.data_stream import ReadDataStream
-from mcap.records import AttachmentIndex, Channel, ChunkIndex, Metadata, MetadataIndex, Schema, Statistics
 
 import rig.core.topics as T  # noqa: N812 - the module is used as a namespace of topic names
+from rig.store.parts import AttachmentInfo, PartRead, ReadVia, read_part
 from rig.store.reader import (
-    MCAP_MAGIC,
-    CorruptChunkError,
     DamagedRegion,
     ProblemKind,
     damaged_chunk_count,
     damaged_seconds,
-    decompress_chunk,
     find_parts,
     part_index,
-    scan_part,
     session_base,
 )
 from vsccore.errors import SessionFileError
@@ -156,24 +147,12 @@ INFO_JSON_KEYS = (
 """Top-level keys of the JSON document, in order (documented in this module's docstring)."""
 
 _NS = 1_000_000_000
-_PAYLOAD_TOPICS = frozenset({T.TOPIC_EVENTS, T.TOPIC_TIMEBASE})
-"""Topics whose messages ``rig info`` decodes (small, JSON)."""
 _NOT_PERIODIC = frozenset({"/rig/events", "/rig/timebase", "/gnss/{receiver}/markpos", "/gnss/{receiver}/marktime"})
 """Topic families that are not periodic: no gap check."""
 _EVENT_SLACK_NS = 60 * _NS
 """Events further than this outside the data span are reported (their clock is suspect)."""
 _RECORDER_PER_PART_KEYS = frozenset({"part_index", "part_file", "previous_part", "started_host_ns", "sources"})
 _DEVICE_KINDS = {"receiver": "gnss", "bus": "can", "device": "daq", "sensor": "optical"}
-
-_REC = struct.Struct("<BQ")
-_MSG_INDEX_REC = struct.Struct("<BQHI")
-_MSG_HEAD = struct.Struct("<HIQQ")
-_CHUNK_HEAD = struct.Struct("<QQQI")
-_OP_CHUNK = 0x06
-_OP_MESSAGE = 0x05
-_OP_MESSAGE_INDEX = 0x07
-_OP_FOOTER = 0x02
-_FOOTER_RECORD = 1 + 8 + 8 + 8 + 4
 
 
 # ---------------------------------------------------------------------------------------------
@@ -185,7 +164,7 @@ class VerdictSource(StrEnum):
     """Where the time-base verdicts that ``rig info`` shows come from."""
 
     DATA = "data"
-    """Computed from the recorded streams (:func:`rig.core.quality.session_verdicts`): every stream is read
+    """Computed from the recorded streams (:func:`rig.data.verdicts.session_verdicts`): every stream is read
     and decoded, seconds on a long session (``rig info --verify``, and :func:`read_session_info`'s default)."""
     RECORDED = "recorded"
     """The recorder's own verdicts at the end of the recording (the last ``timebase`` event in
@@ -203,15 +182,6 @@ class VerdictsInfo:
     """stream → :meth:`rig.core.quality.StreamQuality.to_json`."""
     problem: str | None = None
     """Why no verdicts could be given (then ``streams`` is empty)."""
-
-
-class ReadVia(StrEnum):
-    """How a part was read."""
-
-    SUMMARY = "summary"
-    """Summary section and message indexes (finalized part; fast)."""
-    SCAN = "scan"
-    """Record by record, every chunk decompressed (crashed part, recovered copy without message index)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -379,13 +349,6 @@ class EventSummary:
 
 
 @dataclass(frozen=True, slots=True)
-class AttachmentInfo:
-    name: str
-    media_type: str
-    size_bytes: int
-
-
-@dataclass(frozen=True, slots=True)
 class CalibrationFileInfo:
     """The session's calibration results file (``<base>.calibration.json``, see :mod:`rig.data.inputs`)."""
 
@@ -464,336 +427,6 @@ class SessionInfo:
 # ---------------------------------------------------------------------------------------------
 
 
-@dataclass(slots=True)
-class _PartRead:
-    """What one part contributed (internal; times and payloads by topic)."""
-
-    path: Path
-    size: int
-    via: ReadVia
-    finalized: bool
-    problem: str | None = None
-    problem_kind: ProblemKind | None = None
-    start_ns: int | None = None
-    end_ns: int | None = None
-    damage: tuple[DamagedRegion, ...] = ()
-    verified: bool = False
-    topics: dict[str, tuple[str, str]] = field(default_factory=dict)
-    """topic → (schema name, message encoding)."""
-    counts: dict[str, int] = field(default_factory=dict)
-    times: dict[str, list[npt.NDArray[np.int64]]] = field(default_factory=dict)
-    payloads: dict[str, list[tuple[int, bytes]]] = field(default_factory=dict)
-    metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
-    attachments: list[AttachmentInfo] = field(default_factory=list)
-
-    @property
-    def messages(self) -> int:
-        return sum(self.counts.values())
-
-
-class _NoIndexError(Exception):
-    """The part has no usable summary or message index (it is scanned instead)."""
-
-
-def _ends_with_footer(mm: mmap.mmap) -> bool:
-    size = len(mm)
-    if size < 2 * len(MCAP_MAGIC) + _FOOTER_RECORD or mm[size - len(MCAP_MAGIC) :] != MCAP_MAGIC:
-        return False
-    op, ln = _REC.unpack_from(mm, size - len(MCAP_MAGIC) - _FOOTER_RECORD)
-    return bool(op == _OP_FOOTER and ln == _FOOTER_RECORD - 9)
-
-
-def _decompress(compression: str, raw: bytes, usize: int, where: str) -> bytes:
-    try:
-        return decompress_chunk(compression, raw, usize, where)
-    except CorruptChunkError as exc:
-        raise _NoIndexError(str(exc)) from exc
-
-
-def _read_indexed(path: Path) -> _PartRead:
-    """Read a finalized part from its summary and message indexes (raises _NoIndexError otherwise)."""
-    with open(path, "rb") as f:
-        size = os.fstat(f.fileno()).st_size
-        if size < 2 * len(MCAP_MAGIC) + _FOOTER_RECORD:
-            raise _NoIndexError("too short to be finalized")
-        mm = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
-        try:
-            if mm[: len(MCAP_MAGIC)] != MCAP_MAGIC or not _ends_with_footer(mm):
-                raise _NoIndexError("no footer")
-            try:
-                summary = _read_summary(mm)
-            except (struct.error, ValueError, UnicodeDecodeError) as exc:
-                raise _NoIndexError(f"unreadable summary: {exc}") from exc
-            if summary is None or summary.statistics is None:
-                raise _NoIndexError("no summary statistics")
-            try:
-                return _from_summary(path, size, mm, summary)
-            except (struct.error, ValueError, IndexError, KeyError) as exc:  # damaged index: scan instead
-                raise _NoIndexError(f"unusable index: {exc}") from exc
-        finally:
-            mm.close()
-
-
-@dataclass(slots=True)
-class _Summary:
-    """The summary section of a part (what ``mcap.reader.McapReader.get_summary`` gives, read faster)."""
-
-    statistics: Statistics | None = None
-    schemas: dict[int, Schema] = field(default_factory=dict)
-    channels: dict[int, Channel] = field(default_factory=dict)
-    chunk_indexes: list[ChunkIndex] = field(default_factory=list)
-    attachment_indexes: list[AttachmentIndex] = field(default_factory=list)
-    metadata_indexes: list[MetadataIndex] = field(default_factory=list)
-
-
-_OP_SCHEMA = 0x03
-_OP_CHANNEL = 0x04
-_OP_CHUNK_INDEX = 0x08
-_OP_ATTACHMENT_INDEX = 0x0A
-_OP_STATISTICS = 0x0B
-_OP_METADATA_INDEX = 0x0D
-_U16 = struct.Struct("<H")
-_U32 = struct.Struct("<I")
-_U64 = struct.Struct("<Q")
-_CHUNK_INDEX_HEAD = struct.Struct("<QQQQI")
-_CHUNK_INDEX_MID = struct.Struct("<QI")
-_STATISTICS_HEAD = struct.Struct("<QHIIIIQQ")
-_ATTACHMENT_INDEX_HEAD = struct.Struct("<QQQQQ")
-_CHUNK_INDEX_HEAD_TAIL = struct.Struct("<QQ")
-
-
-class _Body:
-    """A cursor over one record's body that refuses to read past it (a damaged length or count)."""
-
-    __slots__ = ("buf", "end", "pos")
-
-    def __init__(self, buf: mmap.mmap, start: int, end: int) -> None:
-        self.buf, self.pos, self.end = buf, start, end
-
-    def take(self, st: struct.Struct) -> tuple[Any, ...]:
-        if self.pos + st.size > self.end:
-            raise ValueError(f"record at {self.pos} ends early")
-        values = st.unpack_from(self.buf, self.pos)
-        self.pos += st.size
-        return values
-
-    def span(self) -> tuple[int, int]:
-        """A u32-length-prefixed field: its (start, end)."""
-        (n,) = self.take(_U32)
-        start = self.pos
-        if start + n > self.end:
-            raise ValueError(f"field at {start} of {n} bytes overruns its record")
-        self.pos += n
-        return start, start + n
-
-    def text(self) -> str:
-        a, b = self.span()
-        return bytes(self.buf[a:b]).decode()
-
-    def map_u16_u64(self) -> dict[int, int]:
-        a, b = self.span()
-        if (b - a) % 10:
-            raise ValueError(f"map at {a}: {b - a} bytes is not a whole number of entries")
-        return dict(struct.iter_unpack("<HQ", self.buf[a:b]))
-
-    def map_text(self) -> dict[str, str]:
-        a, b = self.span()
-        inner = _Body(self.buf, a, b)
-        out: dict[str, str] = {}
-        while inner.pos < b:
-            key = inner.text()
-            out[key] = inner.text()
-        return out
-
-
-def _read_summary(mm: mmap.mmap) -> _Summary | None:
-    """The summary section, parsed with :mod:`struct` (mcap's reader builds every record through a
-    Python stream and takes most of a second for the thousands of chunk indexes of a long session).
-
-    None when the footer says there is no summary. Raises ``ValueError``/``struct.error`` for a damaged
-    one, as mcap's reader raises its errors; like it, the summary CRC is not checked (``--verify`` does).
-    """
-    footer = len(mm) - len(MCAP_MAGIC) - _FOOTER_RECORD
-    (summary_start,) = _U64.unpack_from(mm, footer + 9)
-    if summary_start == 0:
-        return None
-    if not len(MCAP_MAGIC) <= summary_start <= footer:
-        raise ValueError(f"summary start {summary_start} outside the file")
-    out = _Summary()
-    pos = summary_start
-    while pos < footer:
-        op, ln = _REC.unpack_from(mm, pos)
-        body_end = pos + 9 + ln
-        if body_end > footer:
-            raise ValueError(f"summary record at {pos} ({ln} bytes) runs into the footer")
-        b = _Body(mm, pos + 9, body_end)
-        if op == _OP_CHUNK_INDEX:  # thousands of them: parsed inline
-            p = pos + 9
-            if p + 36 > body_end:
-                raise ValueError(f"chunk index at {pos} ends early")
-            t0, t1, chunk_start, chunk_len, map_len = _CHUNK_INDEX_HEAD.unpack_from(mm, p)
-            p += 36
-            if map_len % 10 or p + map_len + 12 > body_end:
-                raise ValueError(f"chunk index at {pos}: message index map of {map_len} bytes overruns it")
-            offsets = dict(struct.iter_unpack("<HQ", mm[p : p + map_len]))
-            p += map_len
-            mi_len, text_len = _CHUNK_INDEX_MID.unpack_from(mm, p)
-            p += 12
-            if p + text_len + 16 > body_end:
-                raise ValueError(f"chunk index at {pos}: compression name overruns it")
-            compression = mm[p : p + text_len].decode()
-            csize, usize = _CHUNK_INDEX_HEAD_TAIL.unpack_from(mm, p + text_len)
-            out.chunk_indexes.append(ChunkIndex(message_start_time=t0, message_end_time=t1,
-                                                chunk_start_offset=chunk_start, chunk_length=chunk_len,
-                                                message_index_offsets=offsets, message_index_length=mi_len,
-                                                compression=compression, compressed_size=csize,
-                                                uncompressed_size=usize))
-        elif op == _OP_CHANNEL:
-            (cid,) = b.take(_U16)
-            (sid,) = b.take(_U16)
-            topic = b.text()
-            enc = b.text()
-            out.channels[cid] = Channel(id=cid, schema_id=sid, topic=topic, message_encoding=enc,
-                                        metadata=b.map_text())
-        elif op == _OP_SCHEMA:
-            (sid,) = b.take(_U16)
-            name = b.text()
-            enc = b.text()
-            a, e = b.span()
-            out.schemas[sid] = Schema(id=sid, name=name, encoding=enc, data=bytes(mm[a:e]))
-        elif op == _OP_STATISTICS:
-            n, n_schemas, n_channels, n_att, n_meta, n_chunks, t0, t1 = b.take(_STATISTICS_HEAD)
-            out.statistics = Statistics(message_count=n, schema_count=n_schemas, channel_count=n_channels,
-                                        attachment_count=n_att, metadata_count=n_meta, chunk_count=n_chunks,
-                                        message_start_time=t0, message_end_time=t1,
-                                        channel_message_counts=b.map_u16_u64())
-        elif op == _OP_METADATA_INDEX:
-            off, length = b.take(_CHUNK_INDEX_HEAD_TAIL)
-            out.metadata_indexes.append(MetadataIndex(offset=off, length=length, name=b.text()))
-        elif op == _OP_ATTACHMENT_INDEX:
-            off, length, log_time, create_time, data_size = b.take(_ATTACHMENT_INDEX_HEAD)
-            name = b.text()
-            out.attachment_indexes.append(AttachmentIndex(offset=off, length=length, log_time=log_time,
-                                                          create_time=create_time, data_size=data_size, name=name,
-                                                          media_type=b.text()))
-        pos = body_end  # other records (summary offsets) are not needed
-    return out
-
-
-def _from_summary(path: Path, size: int, mm: mmap.mmap, summary: _Summary) -> _PartRead:
-    stats = summary.statistics
-    assert stats is not None  # checked by the caller
-    part = _PartRead(path=path, size=size, via=ReadVia.SUMMARY, finalized=True)
-    channels = summary.channels
-    for ch in channels.values():
-        schema = summary.schemas.get(ch.schema_id)
-        part.topics[ch.topic] = (schema.name if schema is not None else "", ch.message_encoding)
-    blocks: dict[int, list[bytes]] = {}
-    """channel → its message index entries ((log time, offset) u64 pairs), chunk after chunk."""
-    wanted = {cid for cid, ch in channels.items() if ch.topic in _PAYLOAD_TOPICS}
-    for ci in summary.chunk_indexes:
-        payload_entries: list[tuple[int, int, int]] = []  # (channel, log time, offset in chunk)
-        for cid, off in ci.message_index_offsets.items():
-            if cid not in channels or off + 15 > size:
-                raise _NoIndexError(f"message index at {off} names unknown channel {cid} or lies outside the file")
-            op, ln, rcid, rlen = _MSG_INDEX_REC.unpack_from(mm, off)
-            if op != _OP_MESSAGE_INDEX or rcid != cid or rlen % 16 or off + 15 + rlen > size or 6 + rlen > ln:
-                raise _NoIndexError(f"bad message index record at offset {off}")
-            block = mm[off + 15 : off + 15 + rlen]
-            blocks.setdefault(cid, []).append(block)
-            if cid in wanted:
-                pairs = struct.unpack(f"<{rlen // 8}Q", block)
-                payload_entries.extend((cid, t, o) for t, o in zip(pairs[0::2], pairs[1::2], strict=True))
-        if payload_entries:
-            data = _chunk_records(mm, ci)
-            for cid, log_t_i, off in payload_entries:
-                if off + 9 + 22 > len(data):
-                    raise _NoIndexError(f"chunk at {ci.chunk_start_offset}: message offset {off} outside the chunk")
-                op, ln = _REC.unpack_from(data, off)
-                mcid, _seq, _lt, _pt = _MSG_HEAD.unpack_from(data, off + 9)
-                if op != _OP_MESSAGE or mcid != cid:
-                    raise _NoIndexError(f"chunk at {ci.chunk_start_offset}: no message of channel {cid} at {off}")
-                topic = channels[cid].topic
-                part.payloads.setdefault(topic, []).append((log_t_i, bytes(data[off + 9 + 22 : off + 9 + ln])))
-    for cid, n in stats.channel_message_counts.items():
-        got = sum(len(b) for b in blocks.get(cid, [])) // 16
-        if got != n:
-            raise _NoIndexError(f"channel {cid}: message index has {got} entries, statistics say {n}")
-    for cid, chunks in blocks.items():  # one array per channel: its log times in file order
-        log_t = np.frombuffer(b"".join(chunks), dtype="<u8")[0::2].astype(np.int64)
-        topic = channels[cid].topic
-        part.times.setdefault(topic, []).append(log_t)
-        part.counts[topic] = part.counts.get(topic, 0) + int(log_t.size)
-    if stats.message_count:
-        part.start_ns, part.end_ns = int(stats.message_start_time), int(stats.message_end_time)
-    for mi in summary.metadata_indexes:
-        body = bytes(mm[mi.offset + 9 : mi.offset + mi.length])
-        md = Metadata.read(ReadDataStream(BytesIO(body)))
-        part.metadata.append((md.name, dict(md.metadata)))
-    for ai in summary.attachment_indexes:
-        part.attachments.append(AttachmentInfo(ai.name, ai.media_type, int(ai.data_size)))
-    return part
-
-
-def _chunk_records(mm: mmap.mmap, ci: Any) -> bytes:
-    """The decompressed records of the chunk that ``ci`` (a ChunkIndex) points at."""
-    pos = ci.chunk_start_offset
-    op, _ln = _REC.unpack_from(mm, pos)
-    if op != _OP_CHUNK:
-        raise _NoIndexError(f"no chunk at offset {pos}")
-    body = pos + 9
-    _t0, _t1, usize, _crc = _CHUNK_HEAD.unpack_from(mm, body)
-    (clen,) = struct.unpack_from("<I", mm, body + 28)
-    comp = bytes(mm[body + 32 : body + 32 + clen]).decode()
-    (rlen,) = struct.unpack_from("<Q", mm, body + 32 + clen)
-    start = body + 40 + clen
-    return _decompress(comp, bytes(mm[start : start + rlen]), usize, f"chunk at offset {pos}")
-
-
-def _read_scanned(path: Path) -> _PartRead:
-    """Read a part record by record (tolerates a truncated or damaged part)."""
-    scan = scan_part(path)
-    part = _PartRead(
-        path=path,
-        size=scan.size,
-        via=ReadVia.SCAN,
-        finalized=scan.finalized and scan.problem is None,
-        problem=scan.problem,
-        problem_kind=scan.problem_kind,
-        start_ns=scan.message_start_time,
-        end_ns=scan.message_end_time,
-        damage=tuple(scan.damage),
-        verified=True,
-    )
-    for cid, ch in scan.channels.items():
-        schema = scan.schemas.get(ch.schema_id)
-        part.topics[ch.topic] = (schema.name if schema is not None else "", ch.message_encoding)
-        n = scan.channel_counts.get(cid, 0)
-        if n:
-            part.counts[ch.topic] = part.counts.get(ch.topic, 0) + n
-    for topic, tm in scan.topics.items():
-        if len(tm):
-            part.times.setdefault(topic, []).append(np.asarray(tm.log_time, dtype=np.int64))
-        if topic in _PAYLOAD_TOPICS:
-            part.payloads.setdefault(topic, []).extend(zip(tm.log_time, tm.data, strict=True))
-    for md, _ref in scan.metadata:
-        part.metadata.append((md.name, dict(md.metadata)))
-    for att, _ref in scan.attachments:
-        part.attachments.append(AttachmentInfo(att.name, att.media_type, len(att.data)))
-    return part
-
-
-def _read_part(path: Path, verify: bool = False) -> _PartRead:
-    try:
-        if verify:
-            return _read_scanned(path)
-        return _read_indexed(path)
-    except _NoIndexError:
-        return _read_scanned(path)
-    except OSError as exc:
-        raise SessionFileError(f"{path}: cannot read session part: {exc}") from exc
-
-
 # ---------------------------------------------------------------------------------------------
 # Building the summary
 # ---------------------------------------------------------------------------------------------
@@ -823,10 +456,10 @@ def read_session_info(
     if gap_factor <= 1.0 or min_gap_s < 0:
         raise ValueError(f"gap_factor must be > 1 and min_gap_s >= 0, got {gap_factor}, {min_gap_s}")
     files = find_parts(path)
-    parts: list[_PartRead] = []
+    parts: list[PartRead] = []
     for i, p in enumerate(files):
         try:
-            parts.append(_read_part(p, verify))
+            parts.append(read_part(p, verify))
         except SessionFileError as exc:
             raise SessionFileError(f"{exc} (part {i + 1} of {len(files)})") from exc
     warnings: list[str] = []
@@ -923,8 +556,9 @@ def read_session_info(
 
 def _data_verdicts(base: Path) -> VerdictsInfo:
     """The verdicts computed from the session's streams (never raises for a bad session)."""
-    from rig.core.quality import session_verdicts, verdict_lines
+    from rig.core.quality import verdict_lines
     from rig.data import load_session
+    from rig.data.verdicts import session_verdicts
     from vsccore.errors import RigError
 
     try:
@@ -980,7 +614,7 @@ def _calibration_file(part: Path) -> CalibrationFileInfo | None:
     # the dataset (a large share of `rig info`'s run time): only when such a file can exist at all
     if next(part.parent.glob("*.calibration.json"), None) is None:
         return None
-    from rig.data.inputs import calibration_file_path, read_calibration_file
+    from rig.data.sidefiles import calibration_file_path, read_calibration_file
 
     path = calibration_file_path(part)
     if not path.exists():
@@ -995,7 +629,7 @@ def _calibration_file(part: Path) -> CalibrationFileInfo | None:
                                fmt if isinstance(fmt, str) else None)
 
 
-def _span(parts: Sequence[_PartRead], topics: Sequence[TopicInfo]) -> tuple[int | None, int | None]:
+def _span(parts: Sequence[PartRead], topics: Sequence[TopicInfo]) -> tuple[int | None, int | None]:
     """First and last log time of the data (events excluded; all messages if there is nothing else)."""
     data = [t for t in topics if t.first_ns is not None and t.last_ns is not None and t.topic != T.TOPIC_EVENTS]
     if data:
@@ -1013,7 +647,7 @@ def _family(topic: str) -> tuple[T.TopicSpec | None, dict[str, str]]:
         return None, {}
 
 
-def _topics(parts: Sequence[_PartRead], gap_factor: float, min_gap_s: float, max_listed: int) -> tuple[TopicInfo, ...]:
+def _topics(parts: Sequence[PartRead], gap_factor: float, min_gap_s: float, max_listed: int) -> tuple[TopicInfo, ...]:
     names: dict[str, tuple[str, str]] = {}
     for pr in parts:
         for topic, se in pr.topics.items():
@@ -1059,7 +693,7 @@ def _typical_interval(d: npt.NDArray[np.int64]) -> float:
     return float(s[int(np.searchsorted(cum, 0.5 * cum[-1]))])
 
 
-def _events(parts: Sequence[_PartRead]) -> tuple[list[tuple[int, T.Event]], list[str]]:
+def _events(parts: Sequence[PartRead]) -> tuple[list[tuple[int, T.Event]], list[str]]:
     out: list[tuple[int, T.Event]] = []
     bad = 0
     for pr in parts:
@@ -1096,7 +730,7 @@ def _opt_float(v: Any) -> float | None:
     return float(v) if isinstance(v, int | float) and not isinstance(v, bool) else None
 
 
-def _timebase(parts: Sequence[_PartRead]) -> tuple[tuple[ClockInfo, ...], int, list[str]]:
+def _timebase(parts: Sequence[PartRead]) -> tuple[tuple[ClockInfo, ...], int, list[str]]:
     records = sorted((int(t), d) for pr in parts for t, d in pr.payloads.get(T.TOPIC_TIMEBASE, []))
     last: dict[str, tuple[int, dict[str, Any]]] = {}
     counts: dict[str, int] = {}
@@ -1136,7 +770,7 @@ def _timebase(parts: Sequence[_PartRead]) -> tuple[tuple[ClockInfo, ...], int, l
 
 
 def _devices(
-    parts: Sequence[_PartRead], topics: Sequence[TopicInfo], events: Sequence[tuple[int, T.Event]]
+    parts: Sequence[PartRead], topics: Sequence[TopicInfo], events: Sequence[tuple[int, T.Event]]
 ) -> tuple[DeviceInfo, ...]:
     kinds: dict[str, str] = {}
     dev_topics: dict[str, list[str]] = {}

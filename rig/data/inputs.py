@@ -64,12 +64,8 @@ vehicle cluster does not report).
 
 from __future__ import annotations
 
-import datetime as dt
-import json
 import logging
 import math
-import os
-import tempfile
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -83,9 +79,10 @@ from pydantic import ValidationError
 import rig.core.topics as T  # noqa: N812 - the module is used as a namespace
 from rig.core.config import CalibrationConfig, ImuCalibrationConfig, VehicleProfile
 from rig.data import Session, load_session
-from rig.store.reader import find_parts, session_base
+from rig.data.sidefiles import apply_calibration_file, calibration_file_path, read_calibration_file
+from rig.store.reader import session_base
 from vsccore.angles import wrap_2pi
-from vsccore.errors import AnalysisError, ConfigError, RigError, SessionFileError
+from vsccore.errors import AnalysisError, ConfigError, RigError
 from vsccore.gpstime import GPS_EPOCH_UNIX_NS
 
 if TYPE_CHECKING:
@@ -94,7 +91,6 @@ if TYPE_CHECKING:
     from sim_devices.vehicle.truth import GroundTruth
 
 __all__ = [
-    "CALIBRATION_FILE_FORMAT",
     "AntennaFixes",
     "DualGnss",
     "EventRecord",
@@ -103,11 +99,7 @@ __all__ = [
     "Signal",
     "StreamInfo",
     "TruthSeries",
-    "apply_calibration_file",
-    "calibration_file_path",
     "load_inputs",
-    "read_calibration_file",
-    "update_calibration_file",
 ]
 
 log = logging.getLogger(__name__)
@@ -120,7 +112,6 @@ StrArray = npt.NDArray[np.str_]
 _NS = 1_000_000_000
 GOOD_SOLUTION = "SOL_COMPUTED"
 RTK_FIXED_TYPES = frozenset({"NARROW_INT", "L1_INT", "WIDE_INT", "INS_RTKFIXED"})
-CALIBRATION_FILE_FORMAT = "vsc_rig.calibration/1"
 _VELOCITY_MAX_GAP_S = 0.3
 """BESTVEL further than this from a position epoch (both neighbours) leaves A's velocity invalid there."""
 
@@ -546,7 +537,7 @@ def _with_ppk(
 ) -> tuple[AntennaFixes, AntennaFixes]:
     """Both antennas with, per epoch, the better of live RTK and PPK (``<session>.ppk.parquet`` from ``rig ppk``)."""
     from rig.analysis.reference import PositionSource, choose_position_source
-    from rig.ppk.rtklib import ppk_file_path, read_ppk_file
+    from rig.data.sidefiles import ppk_file_path, read_ppk_file
 
     path = ppk_file_path(session.path)
     solutions = read_ppk_file(path)
@@ -693,120 +684,6 @@ def _profile_from_metadata(session: Session, warnings: list[str]) -> VehicleProf
 # ---------------------------------------------------------------------------------------------
 # Calibration file next to the session
 # ---------------------------------------------------------------------------------------------
-
-
-def calibration_file_path(session_path: Path | str) -> Path:
-    """``<session base>.calibration.json`` (next to the parts ``<base>.NNN.mcap``)."""
-    p = Path(session_path)
-    try:
-        parts = find_parts(p)
-        base = session_base(parts[0])
-    except SessionFileError:
-        base = session_base(p)
-    return base.with_name(f"{base.name}.calibration.json")
-
-
-def read_calibration_file(session_path: Path | str) -> dict[str, Any]:
-    """The session's calibration results (``{}`` when there is no file).
-
-    Raises:
-        SessionFileError: the file exists but is not a readable calibration file.
-    """
-    path = calibration_file_path(session_path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        return {}
-    except OSError as exc:
-        raise SessionFileError(f"{path}: cannot read the calibration file: {exc.strerror}") from exc
-    try:
-        doc = json.loads(text)
-    except ValueError as exc:
-        raise SessionFileError(f"{path}: not a JSON calibration file ({exc})") from exc
-    if not isinstance(doc, dict) or doc.get("format") != CALIBRATION_FILE_FORMAT:
-        raise SessionFileError(f"{path}: not a {CALIBRATION_FILE_FORMAT} calibration file")
-    return doc
-
-
-def update_calibration_file(session_path: Path | str, key: str, result: Mapping[str, Any]) -> Path:
-    """Record ``result`` under ``results.<key>`` of the session's calibration file (atomically); returns the path.
-
-    Keys used by the commands: ``mount_offset`` (offset_deg, u95_deg, …), ``optical_zero``
-    ({sensor: {zero_deg, u95_deg, …}}), ``steering_ratio`` (rows), ``imu`` (accel/gyro matrices).
-    """
-    path = calibration_file_path(session_path)
-    doc = read_calibration_file(session_path) or {"format": CALIBRATION_FILE_FORMAT,
-                                                 "session": session_base(path.with_name(path.name.removesuffix(
-                                                     ".calibration.json"))).name, "results": {}}
-    results = doc.setdefault("results", {})
-    entry = dict(result)
-    entry.setdefault("recorded_at", dt.datetime.now(dt.UTC).isoformat(timespec="seconds"))
-    results[key] = entry
-    text = json.dumps(doc, indent=2, sort_keys=False, allow_nan=False, default=_json_default)
-    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text + "\n")
-        Path(tmp).replace(path)
-    except OSError as exc:
-        Path(tmp).unlink(missing_ok=True)
-        raise SessionFileError(f"{path}: cannot write the calibration file: {exc.strerror}") from exc
-    return path
-
-
-def _json_default(obj: object) -> object:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
-
-
-def apply_calibration_file(cal: CalibrationConfig, doc: Mapping[str, Any]) -> tuple[CalibrationConfig, list[str]]:
-    """The calibration in force with the results of a calibration file applied; (calibration, what was applied)."""
-    res = doc.get("results", {}) if isinstance(doc, Mapping) else {}
-    upd: dict[str, Any] = {}
-    applied: list[str] = []
-    m = res.get("mount_offset")
-    if isinstance(m, Mapping) and isinstance(m.get("offset_deg"), int | float):
-        upd.update(mount_offset_deg=float(m["offset_deg"]), mount_offset_u95_deg=m.get("u95_deg"),
-                   mount_offset_date=m.get("date"), mount_offset_session=m.get("session"))
-        applied.append("mount_offset")
-    z = res.get("optical_zero")
-    if isinstance(z, Mapping):
-        zeros = dict(cal.optical_zero_deg)
-        for name, v in z.items():
-            if isinstance(v, Mapping) and isinstance(v.get("zero_deg"), int | float) and name != "recorded_at":
-                zeros[str(name)] = float(v["zero_deg"])
-        if zeros != dict(cal.optical_zero_deg):
-            upd["optical_zero_deg"] = zeros
-            applied.append("optical_zero")
-    s = res.get("steering_ratio")
-    if (isinstance(s, Mapping) and isinstance(s.get("swa_deg"), list) and isinstance(s.get("ratio"), list)
-            and s["swa_deg"] and len(s["swa_deg"]) == len(s["ratio"])):
-        upd.update(steering_ratio_swa_deg=tuple(float(x) for x in s["swa_deg"]),
-                   steering_ratio=tuple(float(x) for x in s["ratio"]), steering_ratio_date=s.get("date"))
-        applied.append("steering_ratio")
-    z = s.get("sas_zero") if isinstance(s, Mapping) else None
-    if isinstance(z, Mapping) and isinstance(z.get("offset_deg"), int | float):
-        upd.update(swa_zero_offset_deg=float(z["offset_deg"]), swa_zero_offset_u95_deg=z.get("u95_deg"))
-        applied.append("sas_zero")
-    imu = res.get("imu")
-    if isinstance(imu, Mapping) and isinstance(imu.get("config"), Mapping):
-        try:
-            upd["imu"] = ImuCalibrationConfig.model_validate(imu["config"])
-            applied.append("imu")
-        except ValidationError as exc:
-            raise ConfigError(f"calibration file: results.imu.config is invalid: {exc}") from None
-    if not upd:
-        return cal, applied
-    try:
-        return CalibrationConfig.model_validate({**cal.model_dump(), **{k: (v.model_dump() if hasattr(
-            v, "model_dump") else v) for k, v in upd.items()}}), applied
-    except ValidationError as exc:
-        raise ConfigError(f"calibration file: results do not form a valid calibration: {exc}") from None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1035,7 +912,7 @@ class _StreamedCan:
 _SLICE = 1 << 20
 """Frames per slice in :func:`_streamed_can_roles` (its temporaries: a few arrays of this length)."""
 _CAN_BATCH_ROWS = 131_072
-"""Frames per batch read by :func:`_streamed_can_roles` (:func:`rig.export.iter_groups`'s ``chunk_rows``)."""
+"""Frames per batch read by :func:`_streamed_can_roles` (:func:`rig.data.stream.iter_groups`'s ``chunk_rows``)."""
 
 
 def _slices(n: int) -> list[tuple[int, int]]:
@@ -1090,7 +967,7 @@ def _read_bus(session: Session, bus: str, keys: npt.NDArray[np.uint32] | None, *
     :meth:`Session.can_frames` feeds it: add_many carries its open bin from one call to the next)."""
     from drivers.can.checks import CAN_EFF_FLAG
     from rig.core.timebase import ClockEstimator
-    from rig.export import iter_groups, open_stream
+    from rig.data.stream import iter_groups, open_stream
 
     out = _BusPass(clock=None if keep_clocks else ClockEstimator(f"can:{bus}"))
     devs: list[IntArray] = []
@@ -1240,7 +1117,7 @@ def _first_time(session: Session, streamed: Mapping[str, _StreamedCan] | None = 
         if truth_read:
             cands.append(int(session.truth().time_ns[0]))
         else:
-            from rig.export import iter_groups, open_stream
+            from rig.data.stream import iter_groups, open_stream
 
             times = [int(np.min(c.time_ns)) for c in iter_groups(open_stream(session.path),
                                                                  topics=[T.TOPIC_SIM_TRUTH]) if len(c)]

@@ -11,7 +11,7 @@
   keeping everything else (comments, order, formatting) with tomlkit;
 - plots (matplotlib, Agg backend, PNG).
 
-Results are also recorded next to the session (:func:`rig.data.inputs.update_calibration_file`),
+Results are also recorded next to the session (:func:`rig.data.sidefiles.update_calibration_file`),
 where :func:`rig.data.inputs.load_inputs` picks them up for later commands.
 """
 
@@ -63,8 +63,8 @@ from calibration.steering import (
     steering_ratio_from_circles,
 )
 from rig.core.config import ImuCalibrationConfig, SessionConfig, load_profile
-from rig.core.quality import check_inputs
 from rig.data.inputs import DualGnss, SessionInputs
+from rig.data.verdicts import check_inputs
 from vsccore.angles import unwrap, wrap_2pi, wrap_pi
 from vsccore.errors import CalibrationError, ConfigError
 

@@ -84,7 +84,8 @@ from rig.analysis.steering import (
     reconstruct_steering,
 )
 from rig.core.config import ValidationConfig, VehicleConfig, VehicleProfile
-from rig.core.quality import StreamQuality, check_inputs
+from rig.core.quality import StreamQuality
+from rig.data.verdicts import check_inputs
 from vsccore.angles import FloatArray, azimuth_to_yaw
 from vsccore.errors import AnalysisError, ConfigError
 

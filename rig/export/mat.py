@@ -18,7 +18,7 @@ Created on: … HDF5 schema 1.00 .``, padded with spaces), 8 bytes of subsystem 
   strings): a cell array would cost one HDF5 object per row.
 
 Every field is a chunked, gzip-compressed dataset that grows along its rows. Each batch that
-:func:`rig.export.iter_groups` yields is buffered per field until it fills whole HDF5 chunks, which are then
+:func:`rig.data.stream.iter_groups` yields is buffered per field until it fills whole HDF5 chunks, which are then
 written once each (the last, partial chunk at the end), so memory holds at most about one chunk per field
 besides the batch being converted, whatever the session's length; HDF5's own chunk cache is turned off.
 
@@ -51,18 +51,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from rig.export import (
-    ExportedFile,
-    ExportKind,
-    ExportReport,
-    GroupChunk,
-    GroupKind,
-    SessionStream,
-    _partial,
-    _progress_fn,
-    _single_file_export,
-    iter_groups,
-)
+from rig.data.stream import GroupChunk, GroupKind, SessionStream, iter_groups
+from rig.export.files import ExportedFile, ExportKind, ExportReport, partial_path, progress_fn, single_file_export
 from vsccore.errors import AnalysisError, ConfigError, SessionFileError
 
 __all__ = [
@@ -88,7 +78,7 @@ MAT73_USERBLOCK_BYTES = 512
 NULL_NS = int(np.iinfo(np.int64).min)
 """A missing integer-nanosecond value in a MAT file (MATLAB's ``intmin('int64')``)."""
 
-_CHUNK_BYTES = 64 << 10
+CHUNK_BYTES = 64 << 10
 """Uncompressed bytes of one HDF5 chunk (and so of the most a field buffers before writing). On the one-hour
 benchmark session (220 fields) 64 KiB gave a lower peak RSS than 256 KiB (386 against 414 MB), a file 3 %
 larger and no slower."""
@@ -194,7 +184,7 @@ class _Field:
     """One array field of a struct, growing along MATLAB's rows (HDF5's last axis), written a chunk at a time."""
 
     def __init__(self, parent: Any, name: str, sample: npt.NDArray[Any], unit: str, *,
-                 chunk_bytes: int = _CHUNK_BYTES) -> None:
+                 chunk_bytes: int = CHUNK_BYTES) -> None:
         self.where = f"{parent.name}/{name}"
         self.char = sample.dtype.kind in "OUS"
         self.logical = sample.dtype == np.bool_
@@ -278,7 +268,7 @@ class _Field:
 class _Struct:
     """A MATLAB struct (an HDF5 group) of row-aligned fields, a ``units`` struct and scalar fields."""
 
-    def __init__(self, parent: Any, name: str, *, chunk_bytes: int = _CHUNK_BYTES) -> None:
+    def __init__(self, parent: Any, name: str, *, chunk_bytes: int = CHUNK_BYTES) -> None:
         self.name = name
         self.group = parent.create_group(name)
         _set_class(self.group, "struct")
@@ -403,13 +393,13 @@ def _export_v73(stream: SessionStream, final: Path, topics: Sequence[str] | None
                 chunk_bytes: int) -> ExportReport:
     import h5py
 
-    tmp = _partial(final)
+    tmp = partial_path(final)
     structs: dict[str, _Struct] = {}
     warnings: list[str] = []
     try:
         # rdcc_nbytes=0: whole chunks are written once each, so HDF5's chunk cache would only hold memory
         with h5py.File(tmp, "w", userblock_size=MAT73_USERBLOCK_BYTES, libver="earliest", rdcc_nbytes=0) as f:
-            for chunk in iter_groups(stream, topics=topics, progress=_progress_fn(progress, stream)):
+            for chunk in iter_groups(stream, topics=topics, progress=progress_fn(progress, stream)):
                 if not len(chunk):
                     continue
                 name = mat_name(chunk.group)
@@ -484,7 +474,7 @@ def _export_v5(stream: SessionStream, final: Path, topics: Sequence[str] | None,
 
     gathered: dict[str, list[tuple[dict[str, npt.NDArray[Any]], dict[str, str]]]] = {}
     buses: dict[str, str] = {}
-    for chunk in iter_groups(stream, topics=topics, progress=_progress_fn(progress, stream)):
+    for chunk in iter_groups(stream, topics=topics, progress=progress_fn(progress, stream)):
         if not len(chunk):
             continue
         name = mat_name(chunk.group)
@@ -513,7 +503,7 @@ def _export_v5(stream: SessionStream, final: Path, topics: Sequence[str] | None,
                             f"{' matching --topics' if topics else ''})")
     structs["session"] = {"name": stream.name, "start_ns": np.int64(stream.start_ns),
                           "start_utc": _utc_text(stream.start_ns)}
-    tmp = _partial(final)
+    tmp = partial_path(final)
     try:
         savemat(tmp, structs, do_compression=True, long_field_names=True, oned_as="column")
         os.replace(tmp, final)
@@ -535,7 +525,7 @@ def export_mat(
     progress: Callable[[int, int, int], None] | None = None,
     validation: bool = True,
     version: MatVersion | str = MatVersion.V73,
-    chunk_bytes: int = _CHUNK_BYTES,
+    chunk_bytes: int = CHUNK_BYTES,
 ) -> ExportReport:
     """Write a session as the MATLAB file ``<out_dir>/<session>.mat``: one struct per topic group (the raw CAN
     frames of each bus included), each with its units, plus ``sideslip`` (with ``validation``: the reference,
@@ -553,7 +543,7 @@ def export_mat(
     except ValueError:
         raise ConfigError(f"rig export --mat-version: {version!r} is not one of "
                           f"{', '.join(v.value for v in MatVersion)}") from None
-    stream, final = _single_file_export(path, out_dir, ".mat", overwrite)
+    stream, final = single_file_export(path, out_dir, ".mat", overwrite)
     if ver is MatVersion.V5:
         return _export_v5(stream, final, topics, progress, validation)
     return _export_v73(stream, final, topics, progress, validation, chunk_bytes)

@@ -1,6 +1,6 @@
 """Post-processed kinematic (PPK) solutions of a recorded session with RTKLIB (``rig ppk``).
 
-Per rover: the session's raw streams are exported (:func:`rig.export.export_raw_gnss`), the rover's
+Per rover: the session's raw streams are exported (:func:`rig.export.raw_gnss.export_raw_gnss`), the rover's
 NovAtel stream (RANGECMPB, GPS and GLONASS records) and the relayed base corrections (RTCM3 MSM +
 1005/1006) are turned into RINEX observations by Debian RTKLIB's ``convbin``, a RINEX 3 navigation
 file is written from the rover's decoded GPSEPHEM and GLOEPHEMERIS logs (RTKLIB 2.4.3 reads GPS
@@ -34,27 +34,21 @@ import tempfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from drivers.novatel import FrameReader
 from drivers.novatel.rawobs import GloEphemeris, GpsEphem, decode_gloephemeris, decode_gpsephem
+from rig.data.sidefiles import PPK_METADATA_KEY, PpkQuality, ppk_file_path
 from vsccore.errors import AnalysisError, DecodeError, RigError, SessionFileError
 
 __all__ = [
-    "PPK_COLUMNS",
-    "PPK_METADATA_KEY",
     "SYSTEMS",
     "SYSTEM_NAMES",
-    "PpkQuality",
     "PpkRover",
     "PpkRun",
     "RtklibMissingError",
-    "ppk_file_path",
-    "ppk_metadata",
-    "read_ppk_file",
     "run_ppk",
     "usable_systems",
     "write_rinex_nav",
@@ -75,32 +69,13 @@ EPHEMERIS_LOGS = {"G": "GPSEPHEMB", "R": "GLOEPHEMERISB"}
 """The rover log with each system's broadcast ephemerides."""
 BASE_MSM = {"G": "RTCM1077", "R": "RTCM1087"}
 """The base's RTCM3 observation message (MSM7) per system."""
-PPK_METADATA_KEY = b"rig.ppk.rtklib"
-"""Parquet key-value metadata of the side file: JSON with the systems asked for, each rover's systems used and
-GLONASS set count, and the warnings of the run."""
 _NAVSYS = {"G": 1, "S": 2, "R": 4, "E": 8, "J": 16, "C": 32}  # RTKLIB's pos1-navsys bits
 _OTHER_SYSTEMS = {"S": "SBAS", "E": "Galileo", "J": "QZSS", "C": "BeiDou"}
-PPK_COLUMNS = ("rover", "gps_time_ns", "time_ns", "lat_deg", "lon_deg", "height_m", "q", "ns",
-               "sdn_m", "sde_m", "sdu_m", "ratio")
-"""Columns of the side file: GPS time (ns since the GPS epoch), UTC (ns since the Unix epoch, with the
-session's leap seconds), WGS84 latitude/longitude (deg) and ellipsoidal height, RTKLIB's quality flag
-``q`` (:class:`PpkQuality`), satellites, standard deviations (m) and the ambiguity ratio."""
 
 _GPS_EPOCH = dt.datetime(1980, 1, 6)
 _NS = 1_000_000_000
 _WEEK_NS = 7 * 86400 * _NS
 _GPS_UNIX_OFFSET_NS = 315_964_800 * _NS
-
-
-class PpkQuality:
-    """RTKLIB's solution quality flag (``Q`` of a ``.pos`` file)."""
-
-    FIX = 1
-    FLOAT = 2
-    SBAS = 3
-    DGPS = 4
-    SINGLE = 5
-    PPP = 6
 
 
 class RtklibMissingError(RigError, OSError):
@@ -143,18 +118,6 @@ class PpkRun:
     out: Path
     rovers: tuple[PpkRover, ...]
     warnings: tuple[str, ...] = ()
-
-
-def ppk_file_path(session_path: Path | str) -> Path:
-    """``<session base>.ppk.parquet`` (next to the parts ``<base>.NNN.mcap``)."""
-    from rig.store import find_parts, session_base
-
-    p = Path(session_path)
-    try:
-        base = session_base(find_parts(p)[0])
-    except SessionFileError:
-        base = session_base(p)
-    return base.with_name(f"{base.name}.ppk.parquet")
 
 
 def _tools() -> dict[str, str]:
@@ -449,7 +412,8 @@ def run_ppk(
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from rig.export import ExportKind, export_raw_gnss
+    from rig.export.files import ExportKind
+    from rig.export.raw_gnss import export_raw_gnss
 
     explicit = systems is not None
     asked = tuple(dict.fromkeys(systems)) if systems is not None else SYSTEMS
@@ -595,82 +559,3 @@ def run_ppk(
     return PpkRun(target, tuple(results), tuple(warnings))
 
 
-@dataclass(frozen=True, slots=True)
-class PpkSolutions:
-    """One rover's PPK solutions from the side file (arrays in epoch order)."""
-
-    rover: str
-    gps_time_ns: npt.NDArray[np.int64]
-    lat_deg: npt.NDArray[np.float64]
-    lon_deg: npt.NDArray[np.float64]
-    height_m: npt.NDArray[np.float64]
-    q: npt.NDArray[np.int8]
-    sdn_m: npt.NDArray[np.float64]
-    sde_m: npt.NDArray[np.float64]
-    sdu_m: npt.NDArray[np.float64]
-    ratio: npt.NDArray[np.float64]
-    systems: tuple[str, ...] = ()
-    """The satellite systems this rover was solved with (from the side file's metadata; () in files written
-    before it was recorded)."""
-
-    @property
-    def fixed(self) -> npt.NDArray[np.bool_]:
-        return np.asarray(self.q == PpkQuality.FIX)
-
-
-def read_ppk_file(path: Path | str) -> dict[str, PpkSolutions]:
-    """The side file's solutions per rover ({} when there is no file).
-
-    Raises:
-        SessionFileError: the file exists but is not a readable PPK side file (columns named).
-    """
-    import pyarrow.parquet as pq
-
-    p = Path(path)
-    if not p.exists():
-        return {}
-    try:
-        tbl = pq.read_table(p)
-    except (OSError, ValueError) as exc:
-        raise SessionFileError(f"{p}: not a readable PPK side file: {exc}") from exc
-    missing = [c for c in PPK_COLUMNS if c not in tbl.column_names]
-    if missing:
-        raise SessionFileError(f"{p}: PPK side file lacks the columns {', '.join(missing)}")
-    rovers_meta = ppk_metadata(tbl.schema.metadata, p).get("rovers", {})
-    used = {str(r): tuple(str(s) for s in v.get("systems", ())) for r, v in rovers_meta.items()
-            if isinstance(v, dict)} if isinstance(rovers_meta, dict) else {}
-    cols = {c: tbl.column(c).to_numpy() for c in PPK_COLUMNS}
-    out: dict[str, PpkSolutions] = {}
-    for r in sorted(set(cols["rover"].tolist())):
-        m = cols["rover"] == r
-        idx = np.flatnonzero(m)[np.argsort(cols["gps_time_ns"][m], kind="stable")]
-
-        def col(name: str, dtype: type, idx: npt.NDArray[np.intp] = idx) -> npt.NDArray:
-            return np.asarray(cols[name][idx], dtype=dtype)
-
-        out[str(r)] = PpkSolutions(str(r), col("gps_time_ns", np.int64), col("lat_deg", np.float64),
-                                   col("lon_deg", np.float64), col("height_m", np.float64), col("q", np.int8),
-                                   col("sdn_m", np.float64), col("sde_m", np.float64), col("sdu_m", np.float64),
-                                   col("ratio", np.float64), used.get(str(r), ()))
-    return out
-
-
-def ppk_metadata(metadata: dict[bytes, bytes] | None, path: Path | str = "side file") -> dict[str, Any]:
-    """The side file's ``rig.ppk.rtklib`` metadata (:data:`PPK_METADATA_KEY`) as a dict ({} when the file has none:
-    written before the systems were recorded).
-
-    Raises:
-        SessionFileError: the metadata is not a JSON object.
-    """
-    import json
-
-    raw = (metadata or {}).get(PPK_METADATA_KEY)
-    if raw is None:
-        return {}
-    try:
-        meta = json.loads(raw)
-    except ValueError as exc:
-        raise SessionFileError(f"{path}: unreadable {PPK_METADATA_KEY.decode()} metadata: {exc}") from exc
-    if not isinstance(meta, dict):
-        raise SessionFileError(f"{path}: {PPK_METADATA_KEY.decode()} metadata is not a JSON object")
-    return meta

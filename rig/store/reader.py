@@ -32,9 +32,28 @@ from pathlib import Path
 from typing import Any
 
 from mcap.data_stream import ReadDataStream, RecordBuilder
-from mcap.records import Attachment, Channel, ChunkIndex, Metadata, Schema
+from mcap.records import Attachment, Channel, Metadata, Schema
 
 from rig.core.topics import Event, EventKind, Severity
+from rig.store.records import (
+    CHUNK_HEAD,
+    MCAP_MAGIC,
+    MSG,
+    OP_ATTACHMENT,
+    OP_CHANNEL,
+    OP_CHUNK,
+    OP_DATA_END,
+    OP_HEADER,
+    OP_MESSAGE,
+    OP_MESSAGE_INDEX,
+    OP_METADATA,
+    OP_SCHEMA,
+    REC,
+    CorruptChunkError,
+    checked_summary,
+    decompress_chunk,
+    ends_with_footer,
+)
 from vsccore.errors import SessionFileError
 
 __all__ = [
@@ -52,28 +71,12 @@ __all__ = [
     "session_base",
 ]
 
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 _PART_RE = re.compile(r"^(?P<name>.+)\.(?P<index>\d{3,})\.mcap$")
 
-_OP_HEADER = 0x01
-_OP_FOOTER = 0x02
-_OP_SCHEMA = 0x03
-_OP_CHANNEL = 0x04
-_OP_MESSAGE = 0x05
-_OP_CHUNK = 0x06
-_OP_MESSAGE_INDEX = 0x07
-_OP_ATTACHMENT = 0x09
-_OP_METADATA = 0x0C
-_OP_DATA_END = 0x0F
 _DATA_OPS = frozenset(
-    {_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX, _OP_ATTACHMENT, _OP_METADATA}
+    {OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX, OP_ATTACHMENT, OP_METADATA}
 )
 """Records that may appear in the data section (custom opcodes >= 0x80 are skipped as well)."""
-_REC = struct.Struct("<BQ")
-_MSG = struct.Struct("<HIQQ")
-_CHUNK_HEAD = struct.Struct("<QQQI")
-_FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
-_OP_CHUNK_INDEX = 0x08
 _MSG_INDEX_HEAD = struct.Struct("<HI")
 _RESYNC_OPS = re.compile(rb"[\x06\x07\x09\x0c\x0f]")
 """Opcodes of the records a search after damage may land on (those that can be checked strongly)."""
@@ -363,8 +366,6 @@ class PartScan:
             raise SessionFileError(f"{self.path}: {self.truncation}")
 
 
-class CorruptChunkError(Exception):
-    pass
 
 
 class _TruncatedError(Exception):
@@ -420,7 +421,7 @@ def scan_part(
         try:
             if mm[: len(MCAP_MAGIC)] != MCAP_MAGIC:
                 # a damaged magic in front of a recognisable MCAP file is salvaged; anything else is refused
-                if size >= 17 and (mm[8] == _OP_HEADER or mm[size - len(MCAP_MAGIC) :] == MCAP_MAGIC):
+                if size >= 17 and (mm[8] == OP_HEADER or mm[size - len(MCAP_MAGIC) :] == MCAP_MAGIC):
                     scan.damage.append(DamagedRegion(0, 8, DamageKind.MAGIC, "leading magic bytes damaged"))
                 else:
                     raise SessionFileError(f"{p}: not an MCAP file (bad magic)")
@@ -444,51 +445,6 @@ def _set_problem(scan: PartScan) -> None:
         scan.problem_kind = ProblemKind.TRUNCATED
 
 
-@dataclass(slots=True)
-class _Summary:
-    start: int
-    """Offset of the summary section (where the damage region of a bad summary begins)."""
-    schemas: dict[int, Schema] = field(default_factory=dict)
-    channels: dict[int, Channel] = field(default_factory=dict)
-    chunk_indexes: list[ChunkIndex] = field(default_factory=list)
-
-
-def _read_summary(mm: mmap.mmap, validate_crcs: bool) -> tuple[_Summary | None, str | None]:
-    """The intact summary (schemas, channels, chunk indexes), or why it is unusable (None, None: there is none)."""
-    size = len(mm)
-    if not _has_footer(mm):
-        return None, None
-    fpos = size - len(MCAP_MAGIC) - _FOOTER_SIZE
-    sstart, soff, crc = struct.unpack_from("<QQI", mm, fpos + 9)
-    if sstart == 0:
-        return None, None
-    if not (len(MCAP_MAGIC) < sstart <= fpos) or (soff and not sstart <= soff <= fpos):
-        return _Summary(start=min(max(sstart, 0), fpos)), f"footer points outside the file (summary at {sstart})"
-    out = _Summary(start=sstart)
-    if validate_crcs and crc:
-        c = zlib.crc32(mm[sstart:fpos])
-        if zlib.crc32(mm[fpos : fpos + 25], c) != crc:
-            return out, "summary CRC mismatch"
-    pos = sstart
-    try:
-        while pos < fpos:
-            op, ln = _REC.unpack_from(mm, pos)
-            nxt = pos + 9 + ln
-            if nxt > fpos:
-                return out, f"summary record at offset {pos} runs past the footer"
-            if op == _OP_SCHEMA:
-                sc = _read_exact(mm, pos, nxt, Schema)
-                out.schemas[sc.id] = sc
-            elif op == _OP_CHANNEL:
-                ch = _read_exact(mm, pos, nxt, Channel)
-                out.channels[ch.id] = ch
-            elif op == _OP_CHUNK_INDEX:
-                out.chunk_indexes.append(_read_exact(mm, pos, nxt, ChunkIndex))
-            pos = nxt
-    except (CorruptChunkError, struct.error) as exc:
-        return out, f"summary damaged: {exc}"
-    out.chunk_indexes.sort(key=lambda c: c.chunk_start_offset)
-    return out, None
 
 
 def _next_strong(mm: mmap.mmap, start: int) -> int | None:
@@ -504,23 +460,23 @@ def _strong(mm: mmap.mmap, p: int) -> bool:
     size = len(mm)
     if p + 9 > size:
         return False
-    op, ln = _REC.unpack_from(mm, p)
+    op, ln = REC.unpack_from(mm, p)
     nxt = p + 9 + ln
     if nxt > size:
         return False
     body = p + 9
     try:
-        if op == _OP_MESSAGE_INDEX:
+        if op == OP_MESSAGE_INDEX:
             if ln < 6:
                 return False
             _cid, rl = _MSG_INDEX_HEAD.unpack_from(mm, body)
             return ln == 6 + rl and rl % 16 == 0
-        if op == _OP_DATA_END:
-            return ln == 4 and (nxt == size or _has_footer(mm))
-        if op == _OP_CHUNK:
+        if op == OP_DATA_END:
+            return ln == 4 and (nxt == size or ends_with_footer(mm))
+        if op == OP_CHUNK:
             if ln < 40:
                 return False
-            _t0, _t1, usize, ucrc = _CHUNK_HEAD.unpack_from(mm, body)
+            _t0, _t1, usize, ucrc = CHUNK_HEAD.unpack_from(mm, body)
             (clen,) = struct.unpack_from("<I", mm, body + 28)
             if clen > 8 or ucrc == 0:
                 return False
@@ -531,10 +487,10 @@ def _strong(mm: mmap.mmap, p: int) -> bool:
                 return False
             data = decompress_chunk(comp, mm[rstart:nxt], usize, "")
             return len(data) == usize and zlib.crc32(data) == ucrc
-        if op == _OP_METADATA:
+        if op == OP_METADATA:
             _read_exact(mm, p, nxt, Metadata)
             return True
-        if op == _OP_ATTACHMENT:
+        if op == OP_ATTACHMENT:
             _read_exact(mm, p, nxt, Attachment)
             (acrc,) = struct.unpack_from("<I", mm, nxt - 4)
             return acrc != 0 and zlib.crc32(mm[body : nxt - 4]) == acrc
@@ -561,7 +517,7 @@ class _Scanner:
         self.validate_crcs = validate_crcs
         self.targets: dict[int, TopicMessages | None] = {}
         """channel id -> TopicMessages to collect into, or None (counted only)."""
-        self.summary, self.summary_problem = _read_summary(mm, validate_crcs)
+        self.summary, self.summary_problem = checked_summary(mm, validate_crcs)
         self.chunk_no = 0
         self.orphans: dict[int, list[int]] = {}
         """Unknown channel id -> [count, first log time, last log time]."""
@@ -606,15 +562,15 @@ class _Scanner:
         while q < end:
             if q + 9 > end:
                 raise CorruptChunkError(f"{where}: record header runs past the end at {q}")
-            op, ln = _REC.unpack_from(buf, q)
+            op, ln = REC.unpack_from(buf, q)
             body = q + 9
             nxt = body + ln
             if nxt > end:
                 raise CorruptChunkError(f"{where}: record of {ln} bytes runs past the end")
-            if op == _OP_MESSAGE:
+            if op == OP_MESSAGE:
                 if ln < 22:
                     raise CorruptChunkError(f"{where}: message record of {ln} bytes is too short")
-                cid, seq, log_t, pub_t = _MSG.unpack_from(buf, body)
+                cid, seq, log_t, pub_t = MSG.unpack_from(buf, body)
                 if t_min is None or log_t < t_min:
                     t_min = log_t
                 if t_max is None or log_t > t_max:
@@ -633,10 +589,10 @@ class _Scanner:
                     tgt.publish_time.append(pub_t)
                     tgt.sequence.append(seq)
                     tgt.data.append(buf[body + 22 : nxt])
-            elif op == _OP_SCHEMA:
+            elif op == OP_SCHEMA:
                 sc = _read_exact(buf, q, nxt, Schema)
                 scan.schemas[sc.id] = sc
-            elif op == _OP_CHANNEL:
+            elif op == OP_CHANNEL:
                 ch = _read_exact(buf, q, nxt, Channel)
                 if ch.schema_id and ch.schema_id not in scan.schemas:
                     # its Schema record was in a damaged chunk: from the summary, else the channel stays
@@ -684,7 +640,7 @@ class _Scanner:
         body = pos + 9
         where = f"record at offset {pos}"
         try:
-            if op == _OP_HEADER:
+            if op == OP_HEADER:
                 (plen,) = struct.unpack_from("<I", mm, body)
                 (llen,) = struct.unpack_from("<I", mm, body + 4 + plen)
                 if body + 8 + plen + llen != nxt:
@@ -692,9 +648,9 @@ class _Scanner:
                 scan.library = mm[body + 8 + plen : body + 8 + plen + llen].decode("utf-8")
                 mm[body + 4 : body + 4 + plen].decode("utf-8")
                 scan.header_ok = True
-            elif op == _OP_CHUNK:
+            elif op == OP_CHUNK:
                 where = f"chunk at offset {pos}"
-                t0, t1, usize, ucrc = _CHUNK_HEAD.unpack_from(mm, body)
+                t0, t1, usize, ucrc = CHUNK_HEAD.unpack_from(mm, body)
                 (clen,) = struct.unpack_from("<I", mm, body + 28)
                 if clen > 8:
                     raise CorruptChunkError(f"{where}: compression name of {clen} bytes (damaged header)")
@@ -711,21 +667,21 @@ class _Scanner:
                 self.messages_atomically(data, where, t0, t1)
                 scan.chunks.append(ChunkInfo(pos, nxt - pos, t0, t1, comp, int(rlen), usize))
                 self.chunk_no += 1
-            elif op in (_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE):
+            elif op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE):
                 self.messages_atomically(mm[pos:nxt], where, None, None)
-            elif op == _OP_MESSAGE_INDEX:
+            elif op == OP_MESSAGE_INDEX:
                 if not _strong(mm, pos):
                     raise CorruptChunkError(f"message index at offset {pos} is damaged")
-            elif op == _OP_METADATA:
+            elif op == OP_METADATA:
                 md = _read_exact(mm, pos, nxt, Metadata)
                 scan.metadata.append((md, RecordRef(pos, nxt - pos)))
-            elif op == _OP_ATTACHMENT:
+            elif op == OP_ATTACHMENT:
                 att = _read_exact(mm, pos, nxt, Attachment)
                 (acrc,) = struct.unpack_from("<I", mm, nxt - 4)
                 if self.validate_crcs and acrc and zlib.crc32(mm[body : nxt - 4]) != acrc:
                     raise CorruptChunkError(f"attachment {att.name!r} at offset {pos}: CRC mismatch")
                 scan.attachments.append((att, RecordRef(pos, nxt - pos)))
-            elif op == _OP_DATA_END and nxt - pos != 13:
+            elif op == OP_DATA_END and nxt - pos != 13:
                 raise CorruptChunkError(f"DataEnd record at offset {pos} has length {nxt - pos - 9}")
         except (struct.error, UnicodeDecodeError, ValueError, IndexError) as exc:
             raise CorruptChunkError(f"{where} (opcode 0x{op:02x}) is damaged: {exc}") from exc
@@ -746,15 +702,15 @@ class _Scanner:
             if pos + 9 > size:
                 scan.truncation = f"the part ends inside a record header at offset {pos}"
                 break
-            op, ln = _REC.unpack_from(mm, pos)
+            op, ln = REC.unpack_from(mm, pos)
             if op == 0 and ln == 0 and not any(mm[pos : min(size, pos + 4096)]):
                 scan.truncation = f"zero-filled tail from offset {pos} (unwritten file blocks)"
                 break
             nxt = pos + 9 + ln
             try:
-                if not header_seen and op != _OP_HEADER:
+                if not header_seen and op != OP_HEADER:
                     raise CorruptChunkError(f"expected the MCAP header at offset {pos}, found opcode 0x{op:02x}")
-                if header_seen and op != _OP_DATA_END and op not in _DATA_OPS:
+                if header_seen and op != OP_DATA_END and op not in _DATA_OPS:
                     raise CorruptChunkError(f"unexpected record opcode 0x{op:02x} at offset {pos} in the data section")
                 if nxt > size:
                     raise _TruncatedError(f"the part ends inside a record (opcode 0x{op:02x}) at offset {pos}")
@@ -769,7 +725,7 @@ class _Scanner:
                 header_seen = True
                 continue
             except CorruptChunkError as exc:
-                r = nxt if op == _OP_CHUNK and nxt <= size and _strong(mm, nxt) else _next_strong(mm, pos + 1)
+                r = nxt if op == OP_CHUNK and nxt <= size and _strong(mm, nxt) else _next_strong(mm, pos + 1)
                 self.damaged(pos, size if r is None else r, str(exc))
                 if r is None:
                     break
@@ -778,10 +734,10 @@ class _Scanner:
                 continue
             header_seen = True
             pos = nxt
-            if op == _OP_DATA_END:
+            if op == OP_DATA_END:
                 scan.data_end_found = True
                 self.check_data_section(pos - 13)  # the DataEnd record: 9-byte header + its CRC
-                scan.finalized = _has_footer(mm)
+                scan.finalized = ends_with_footer(mm)
                 if not scan.finalized:
                     scan.truncation = "the part ends inside its summary (all data is there; no index)"
                 elif self.summary_problem is not None:
@@ -812,7 +768,7 @@ class _Scanner:
         """Note the region ``[start, end)`` as damaged (described in :meth:`finish`)."""
         self.pending.append({"start": start, "end": end, "reason": reason, "after_chunk": len(self.scan.chunks),
                              "prev_t": self.scan.message_end_time, "first_chunk_no": self.chunk_no,
-                             "looks_chunk": self.mm[start] == _OP_CHUNK})
+                             "looks_chunk": self.mm[start] == OP_CHUNK})
         self.chunk_no += 1
 
     def finish(self) -> None:
@@ -853,13 +809,13 @@ class _Scanner:
                     t_hi = ci.message_end_time if t_hi is None else max(t_hi, ci.message_end_time)
                     cids.update(ci.message_index_offsets)
                     for off in ci.message_index_offsets.values():
-                        if _strong(mm, off) and mm[off] == _OP_MESSAGE_INDEX:
+                        if _strong(mm, off) and mm[off] == OP_MESSAGE_INDEX:
                             n_msgs = (n_msgs or 0) + _MSG_INDEX_HEAD.unpack_from(mm, off + 9)[1] // 16
-        if not chunks and (d["looks_chunk"] or (end < len(mm) and mm[end] == _OP_MESSAGE_INDEX)):
+        if not chunks and (d["looks_chunk"] or (end < len(mm) and mm[end] == OP_MESSAGE_INDEX)):
             chunks.append(int(d["first_chunk_no"]))
             # the message index records right after the region belong to the chunk that was lost
             q = end
-            while q + 15 <= len(mm) and mm[q] == _OP_MESSAGE_INDEX and _strong(mm, q):
+            while q + 15 <= len(mm) and mm[q] == OP_MESSAGE_INDEX and _strong(mm, q):
                 cid, rl = _MSG_INDEX_HEAD.unpack_from(mm, q + 9)
                 if rl:
                     cids.add(cid)
@@ -868,7 +824,7 @@ class _Scanner:
                     t_lo = min(times) if t_lo is None else min(t_lo, *times)
                     t_hi = max(times) if t_hi is None else max(t_hi, *times)
                     n_msgs = (n_msgs or 0) + rl // 16
-                (_op, ln) = _REC.unpack_from(mm, q)
+                (_op, ln) = REC.unpack_from(mm, q)
                 q += 9 + ln
         exact = t_lo is not None
         if not exact:
@@ -880,31 +836,8 @@ class _Scanner:
         return DamagedRegion(start, end - start, kind, str(d["reason"]), tuple(chunks), t_lo, t_hi, topics,
                              n_msgs, exact)
 
-def decompress_chunk(compression: str, raw: bytes, usize: int, where: str) -> bytes:
-    """Decompress one MCAP chunk; raises CorruptChunkError naming ``where`` on damaged or unknown data."""
-    try:
-        if compression == "zstd":
-            import zstandard
-
-            return zstandard.ZstdDecompressor().decompress(raw, max_output_size=usize)
-        if compression == "lz4":
-            import lz4.frame
-
-            out: bytes = lz4.frame.decompress(raw)
-            return out
-        if compression == "":
-            return raw
-    except Exception as exc:  # the libraries raise their own error types for damaged input
-        raise CorruptChunkError(f"{where}: cannot decompress {compression} chunk: {exc}") from exc
-    raise CorruptChunkError(f"{where}: unsupported chunk compression {compression!r}")
 
 
-def _has_footer(mm: mmap.mmap) -> bool:
-    size = len(mm)
-    if size < 2 * len(MCAP_MAGIC) + _FOOTER_SIZE or mm[size - len(MCAP_MAGIC) :] != MCAP_MAGIC:
-        return False
-    op, ln = _REC.unpack_from(mm, size - len(MCAP_MAGIC) - _FOOTER_SIZE)
-    return bool(op == _OP_FOOTER and ln == _FOOTER_SIZE - 9)
 
 
 def iter_topic_messages(scans: list[PartScan], topic: str) -> Iterator[tuple[int, int, int, bytes]]:

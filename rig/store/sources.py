@@ -121,7 +121,7 @@ class SourceStats:
     maxsize: int
 
 
-class _Channel:
+class ChannelState:
     """A concrete topic: its schema, its MCAP id in the current part, and its sequence counter."""
 
     __slots__ = ("clamp_event_ns", "clamp_max", "clamp_reported", "clamped", "epoch", "first_log", "intervals",
@@ -167,14 +167,14 @@ class _Channel:
 
 
 @dataclass(slots=True)
-class _DropWindow:
+class DropWindow:
     count: int = 0
     first_ns: int = 0
     last_ns: int = 0
     topics: dict[str, int] = field(default_factory=dict)
 
 
-class _Hub:
+class SourceHub:
     """State shared by the recorder and its sources: channels, the wake-up event, accepting or not."""
 
     def __init__(self, clock: Clock, host_to_log_time: Callable[[int], int], validate: bool,
@@ -182,7 +182,7 @@ class _Hub:
         self.clock = clock
         self.host_to_log_time = host_to_log_time
         self.validate = validate
-        self.channels: dict[str, _Channel] = {}
+        self.channels: dict[str, ChannelState] = {}
         self.lock = threading.Lock()
         self.wake = threading.Event()
         self.idle = False
@@ -194,7 +194,7 @@ class _Hub:
         self.sources: tuple[Source, ...] = ()
         self.events: Source | None = None
 
-    def channel(self, topic: str) -> _Channel:
+    def channel(self, topic: str) -> ChannelState:
         """The channel of ``topic``, created on first use (ValueError for a topic not in rig.core.topics)."""
         ch = self.channels.get(topic)
         if ch is not None:
@@ -203,7 +203,7 @@ class _Hub:
         with self.lock:
             ch = self.channels.get(topic)
             if ch is None:
-                ch = _Channel(topic, spec)
+                ch = ChannelState(topic, spec)
                 self.channels = {**self.channels, topic: ch}
         return ch
 
@@ -237,15 +237,15 @@ class Source:
         "name",
     )
 
-    def __init__(self, name: str, maxsize: int, hub: _Hub) -> None:
+    def __init__(self, name: str, maxsize: int, hub: SourceHub) -> None:
         if maxsize < 1:
             raise ValueError(f"source {name!r}: maxsize must be >= 1, got {maxsize}")
         self.name = name
         self._hub = hub
         self._maxsize = maxsize
-        self._q: deque[tuple[_Channel, int, int, bytes]] = deque()
+        self._q: deque[tuple[ChannelState, int, int, bytes]] = deque()
         self._lock = threading.Lock()
-        self._drops: _DropWindow | None = None
+        self._drops: DropWindow | None = None
         self._accepted = 0
         self._written = 0
         self._rejected = 0
@@ -403,13 +403,13 @@ class Source:
         with self._lock:
             w = self._drops
             if w is None:
-                w = self._drops = _DropWindow(first_ns=log_time_ns, last_ns=log_time_ns)
+                w = self._drops = DropWindow(first_ns=log_time_ns, last_ns=log_time_ns)
             w.count += 1
             w.first_ns = min(w.first_ns, log_time_ns)
             w.last_ns = max(w.last_ns, log_time_ns)
             w.topics[topic] = w.topics.get(topic, 0) + 1
 
-    def _take_drops(self) -> _DropWindow | None:
+    def _take_drops(self) -> DropWindow | None:
         """Called by the writer: the losses since the last report (and reset)."""
         with self._lock:
             w, self._drops = self._drops, None
@@ -418,7 +418,7 @@ class Source:
         return w
 
 
-def channel_timings(hub: _Hub) -> list[ChannelTiming]:
+def channel_timings(hub: SourceHub) -> list[ChannelTiming]:
     """The log-time record of every channel of a recording (topic order), with the gaps its source reported."""
     gaps: dict[str, tuple[tuple[int, int], ...]] = {}
     for src in hub.sources:

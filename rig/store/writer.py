@@ -62,7 +62,7 @@ from rig.core.topics import (
 )
 from rig.store.reader import PartScan, part_path
 from rig.store.recover import finalize_in_place, lock_reserve, remove_stale_reserves, reserve_path
-from rig.store.sources import ChannelTiming, Source, SourceStats, _Channel, _DropWindow, _Hub, channel_timings
+from rig.store.sources import ChannelState, ChannelTiming, DropWindow, Source, SourceHub, SourceStats, channel_timings
 from vsccore.clock import Clock, SystemClock
 from vsccore.errors import DiskFullError, RigError, SessionFileError
 
@@ -306,7 +306,7 @@ class Recorder:
                 raise ValueError(f"metadata name {name!r} is reserved for the recorder")
             self._metadata[name] = dict(record)
         self._attachments = tuple(attachments)
-        self._hub = _Hub(self._clock, host_to_log_time or (lambda t: t), self._opts.validate_json,
+        self._hub = SourceHub(self._clock, host_to_log_time or (lambda t: t), self._opts.validate_json,
                          wake_depth=self._opts.batch)
         self._hub.events = Source("recorder.events", self._opts.event_queue_size, self._hub)
         self._hub.add_source(self._hub.events)
@@ -620,7 +620,7 @@ class Recorder:
         self._messages += total
         return total
 
-    def _register(self, part: _Part, ch: _Channel) -> None:
+    def _register(self, part: _Part, ch: ChannelState) -> None:
         sid = part.schema_ids.get(ch.schema.name)
         if sid is None:
             sid = part.writer.register_schema(ch.schema.name, ch.schema.schema_encoding, ch.schema.data)
@@ -646,7 +646,7 @@ class Recorder:
         self._messages += 1
         self._dirty = True
 
-    def _report_drops(self, src: Source, w: _DropWindow) -> None:
+    def _report_drops(self, src: Source, w: DropWindow) -> None:
         log.warning("source %s: queue full, %d messages dropped", src.name, w.count)
         self._write_event(
             Event(

@@ -8,7 +8,8 @@ test campaign, as Dask tasks, into one Parquet metrics table and an HTML report 
   ``vsc_beta_estimate``; else ``package.module:function`` as ``rig validate --estimator``). With
   ``calibrate`` the antenna mounting offset is estimated from the session's straight runs
   (:func:`~rig.evaluate.calibrate.calibrate_baseline`) and used by that session's validation in place of the
-  offset in force (nothing is written beside the session); with ``rollover`` the LTR summary of :func:`rig.evaluate.validate.rollover_session` joins the rows.
+  offset in force (nothing is written beside the session); with ``rollover`` the LTR summary of
+  :func:`rig.evaluate.validate.rollover_session` joins the rows.
 - Schedulers: ``serial`` runs the tasks in this process; otherwise a ``distributed.LocalCluster`` of
   ``workers`` processes, or the cluster at a ``tcp://`` scheduler address (whose workers must have vsc-rig installed
   and see the session paths and the estimator modules). A failing session (unreadable file, missing stream,
@@ -249,7 +250,7 @@ def session_content_key(path: Path | str, mode: KeyMode = KeyMode.QUICK) -> str:
     Raises:
         SessionFileError: the session's parts cannot be found or read.
     """
-    from rig.data.inputs import calibration_file_path
+    from rig.data.sidefiles import calibration_file_path
     from rig.store import find_parts
 
     parts = find_parts(path)
@@ -410,8 +411,8 @@ def analyse_session(task: SessionTask) -> dict[str, Any]:
     with ``verdict`` ERROR and the error text (cacheable when it is a :class:`RigError`: it follows from the data).
     """
     from rig.analysis.reference import ReferenceMethod
-    from rig.core.quality import session_verdicts
     from rig.data.inputs import load_inputs
+    from rig.data.verdicts import session_verdicts
     from rig.evaluate.validate import validate_session
 
     name = Path(task.path).name

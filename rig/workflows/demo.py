@@ -217,7 +217,8 @@ def _plot_truth(truth: GroundTruth, path: Path) -> None:
 
 def _calibrate(session: Path, out_dir: Path) -> tuple[str, tuple[Path, ...]]:
     """Mounting offset and optical zero from the straight runs, recorded next to the session."""
-    from rig.data.inputs import load_inputs, update_calibration_file
+    from rig.data.inputs import load_inputs
+    from rig.data.sidefiles import update_calibration_file
     from rig.evaluate.calibrate import (
         baseline_record,
         calibrate_baseline,
@@ -272,7 +273,8 @@ def _rollover(session: Path, out_dir: Path) -> tuple[str, tuple[Path, ...]]:
 
 def _steering_ratio(session: Path, out_dir: Path) -> tuple[str, tuple[Path, ...]]:
     """Steering ratio from the constant-SWA circles of the drive, against the simulator's steering gear."""
-    from rig.data.inputs import load_inputs, update_calibration_file
+    from rig.data.inputs import load_inputs
+    from rig.data.sidefiles import update_calibration_file
     from rig.evaluate.calibrate import calibrate_steering_ratio, format_steering, plot_steering, steering_record
 
     cal = calibrate_steering_ratio(load_inputs(session, truth=True, optical=False))

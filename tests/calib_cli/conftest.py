@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from rig.core.config import SessionConfig, load_session
-from rig.data.inputs import update_calibration_file
+from rig.data.sidefiles import update_calibration_file
 from tests.calib_cli.synth import (
     SIM_TOML,
     circles,

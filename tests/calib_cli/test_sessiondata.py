@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from rig.core.config import ImuCalibrationConfig, SessionConfig
-from rig.data.inputs import calibration_file_path, load_inputs, read_calibration_file, update_calibration_file
+from rig.data.inputs import load_inputs
+from rig.data.sidefiles import calibration_file_path, read_calibration_file, update_calibration_file
 from sim_devices.vehicle import make_scenario
 from tests.calib_cli.conftest import TRUE_OFFSET_DEG
 from tests.calib_cli.synth import simulate_truth, write_truth_session

@@ -11,7 +11,8 @@ import pytest
 
 from calibration.segments import Direction
 from rig.core.config import SessionConfig, load_session
-from rig.data.inputs import load_inputs, read_calibration_file, update_calibration_file
+from rig.data.inputs import load_inputs
+from rig.data.sidefiles import read_calibration_file, update_calibration_file
 from rig.evaluate.calibrate import calibrate_steering_ratio
 from sim_devices.vehicle import Drive, SteeringGear, VehicleParams, demo_drive, make_scenario
 from tests.calib_cli.conftest import TRUE_OFFSET_DEG

@@ -15,7 +15,7 @@ import pytest
 
 import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from rig.data import Session, Table, load_session
-from rig.export import export_parquet
+from rig.export.parquet import export_parquet
 from rig.store import Recorder, RecorderOptions, session_metadata
 from tests.test_dataset_raw_gnss import assert_same_columns
 from vsccore.gpstime import gps_ns_to_unix_ns, gps_to_ns

@@ -14,7 +14,9 @@ from typer.testing import CliRunner
 import rig.core.topics as T  # noqa: N812 - short alias
 from drivers.novatel import FrameKind, Framer
 from rig.cli.main import app
-from rig.export import ExportKind, ExportReport, export_csv, export_raw_gnss
+from rig.export.csv import export_csv
+from rig.export.files import ExportKind, ExportReport
+from rig.export.raw_gnss import export_raw_gnss
 from rig.store import find_parts, scan_part
 from tests.inspect.synth import RECEIVERS, U0, Synth
 from vsccore.errors import AnalysisError, SessionFileError

@@ -14,7 +14,10 @@ from typer.testing import CliRunner
 
 from rig.cli.main import app
 from rig.data import load_session
-from rig.export import export_mat, export_mdf4, export_parquet, iter_groups, open_stream, unit_suffix
+from rig.data.stream import iter_groups, open_stream, unit_suffix
+from rig.export.mat import export_mat
+from rig.export.mdf4 import export_mdf4
+from rig.export.parquet import export_parquet
 from tests.dataset.synth import DBC, Synth, utc
 from tests.dataset.synth import write_session as write_dataset_session
 from tests.inspect.recorded import record_validating_drive
@@ -467,11 +470,11 @@ def test_can_counter_checks_run_on_across_batches(ds: Synth) -> None:
     import rig.core.topics as T  # noqa: N812 - short alias
     from drivers.can.dbc import parse_dbc_text
     from drivers.can.roles import encode_role_frame
-    from rig.export import _can_chunk, _role_decoding, _roles_chunk
+    from rig.data.stream import can_chunk, role_decoding, roles_chunk
 
     db = parse_dbc_text(DBC.read_text())
     stream = open_stream(ds.base)
-    rd_one = _role_decoding(ds.base, stream.attachments, "can0")  # the session's attached DBC and role map
+    rd_one = role_decoding(ds.base, stream.attachments, "can0")  # the session's attached DBC and role map
     rm = rd_one.decoder.rolemap
     n = 100
     counters = [k if k < 50 else k + 3 for k in range(n)]  # frames lost just before frame 50
@@ -485,10 +488,10 @@ def test_can_counter_checks_run_on_across_batches(ds: Synth) -> None:
         return T.pack_can_columns(t[sl], t[sl], np.full(m, 257), np.full(m, int(T.CanFlag.RX)), np.full(m, 8),
                                   np.full(m, 8), payloads[sl])
 
-    whole = _roles_chunk(rd_one, _can_chunk("can_can0_frames", [int(t[0])], [block(slice(0, n))]))
-    rd = _role_decoding(ds.base, stream.attachments, "can0")
-    first = _roles_chunk(rd, _can_chunk("can_can0_frames", [int(t[0])], [block(slice(0, 50))]))
-    second = _roles_chunk(rd, _can_chunk("can_can0_frames", [int(t[50])], [block(slice(50, n))]))
+    whole = roles_chunk(rd_one, can_chunk("can_can0_frames", [int(t[0])], [block(slice(0, n))]))
+    rd = role_decoding(ds.base, stream.attachments, "can0")
+    first = roles_chunk(rd, can_chunk("can_can0_frames", [int(t[0])], [block(slice(0, 50))]))
+    second = roles_chunk(rd, can_chunk("can_can0_frames", [int(t[50])], [block(slice(50, n))]))
     assert whole is not None and first is not None and second is not None
     ok = whole.columns["yaw_rate_ok"]
     assert not ok[50] and ok[:50].all() and ok[51:].all()  # the decoder flags the jump over the whole bus

@@ -19,7 +19,7 @@ import pytest
 
 import rig.data.inputs as sd
 from rig.data import Session, load_session
-from rig.export import export_mat
+from rig.export.mat import export_mat
 from tests.dataset.synth import Synth
 from tests.dataset.synth import write_session as write_dataset_session
 from tests.inspect.recorded import record_validating_drive

@@ -235,7 +235,7 @@ def test_damaged_message_index_falls_back_to_the_scan(synth: Synth, tmp_path: Pa
 
 def test_calibration_results_file_in_text_and_json(synth: Synth, tmp_path: Path) -> None:
     """``rig calibrate-baseline`` writes ``<base>.calibration.json``; ``rig info`` shows what it holds."""
-    from rig.data.inputs import calibration_file_path, update_calibration_file
+    from rig.data.sidefiles import calibration_file_path, update_calibration_file
 
     for p in find_parts(synth.base):
         shutil.copy(p, tmp_path / p.name)

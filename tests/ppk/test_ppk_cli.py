@@ -17,17 +17,8 @@ from typer.testing import CliRunner
 
 from drivers.novatel.rawobs import GloEphemeris
 from rig.cli.main import app, main
-from rig.ppk.rtklib import (
-    PPK_COLUMNS,
-    PPK_METADATA_KEY,
-    PpkQuality,
-    ppk_file_path,
-    ppk_metadata,
-    read_ppk_file,
-    run_ppk,
-    usable_systems,
-    write_rinex_nav,
-)
+from rig.data.sidefiles import PPK_COLUMNS, PPK_METADATA_KEY, PpkQuality, ppk_file_path, ppk_metadata, read_ppk_file
+from rig.ppk.rtklib import run_ppk, usable_systems, write_rinex_nav
 from tests.ppk.filtered import copy_without_logs
 from vsccore.errors import AnalysisError
 

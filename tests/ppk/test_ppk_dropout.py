@@ -29,8 +29,8 @@ from rig.analysis.reference import PositionSource, ReferenceSideslip
 from rig.cli.main import app
 from rig.core.config import load_session
 from rig.data.inputs import SessionInputs, load_inputs
+from rig.data.sidefiles import PPK_COLUMNS, ppk_file_path, read_ppk_file
 from rig.evaluate.validate import validate_session, validation_lines
-from rig.ppk.rtklib import PPK_COLUMNS, ppk_file_path, read_ppk_file
 from rig.sim.world import SimWorld, record_simulated
 from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams

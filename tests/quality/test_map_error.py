@@ -18,18 +18,11 @@ import numpy.typing as npt
 import pytest
 
 from rig.core.config import load_session as load_config
-from rig.core.quality import (
-    FLOOR_ALLOWANCE_MS,
-    THRESHOLDS,
-    Figure,
-    StreamQuality,
-    Verdict,
-    daq_causality_ns,
-    session_verdicts,
-)
+from rig.core.quality import FLOOR_ALLOWANCE_MS, THRESHOLDS, Figure, StreamQuality, Verdict
 from rig.core.timebase import ClockEstimator, causality_bound_ns
 from rig.core.topics import EventKind
 from rig.data import Session, load_session
+from rig.data.verdicts import daq_causality_ns, session_verdicts
 from rig.sim.world import record_simulated
 from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams

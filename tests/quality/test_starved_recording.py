@@ -91,8 +91,9 @@ def test_the_recording_reports_the_starved_can_stream_as_late(starved: tuple[Pat
 def test_the_starved_stream_is_refused_on_its_timing_figure_too(starved: tuple[Path, RecordingSummary]) -> None:
     """Not only its early end: the frames' floor rose by seconds above the map, which the map cannot be checked
     against (the reader's backlog and a clock running away look alike), live and offline."""
-    from rig.core.quality import Verdict, session_verdicts
+    from rig.core.quality import Verdict
     from rig.data import load_session
+    from rig.data.verdicts import session_verdicts
 
     path, summary = starved
     for q in (summary.verdicts["can:vsc"], session_verdicts(load_session(path))["can:vsc"]):

@@ -1,4 +1,4 @@
-"""Per-stream time-base verdicts computed from what a session file holds (rig.core.quality.session_verdicts)."""
+"""Per-stream time-base verdicts computed from what a session file holds (rig.data.verdicts.session_verdicts)."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ from rig.core.quality import (
     backward_steps,
     find_gaps,
     judge,
-    session_verdicts,
 )
 from rig.data import load_session
+from rig.data.verdicts import session_verdicts
 
 MS = 1_000_000
 NS = 1_000_000_000

@@ -137,7 +137,7 @@ def test_reconstruct_removes_the_calibrated_sas_zero(recorded: Recorded, tmp_pat
     import shutil
 
     from rig.core.config import load_session
-    from rig.data.inputs import update_calibration_file
+    from rig.data.sidefiles import update_calibration_file
     from rig.evaluate.validate import steering_session
     from rig.workflows.demo import demo_config_path
 
