@@ -9,7 +9,7 @@ frames, best of ``--repeat`` runs:
 - ``RoleDecoder.decode``: ``compiled=False`` (cantools decode, then the role specs) vs the compiled
   per-message decoders, on the simulated car's traffic with its role map, and on the VW MQB DBC
   with the shipped role map when ../shared is present;
-- ``CanBusSession._deliver`` (a ``can.Message`` to a :class:`CanFrame`, bit times, bus-load meter):
+- ``CanBusLink._deliver`` (a ``can.Message`` to a :class:`CanFrame`, bit times, bus-load meter):
   with the reference bit times vs the fast ones.
 
 The bottom line is the share of one core the driver spends on a 1 Mbit/s bus at full load
@@ -30,7 +30,7 @@ import can
 from cantools.database.can import Database
 
 import drivers.can.bus as bus_mod
-from drivers.can.bus import CanBusConfig, CanBusSession, _frame_bit_times_reference, frame_bit_times
+from drivers.can.bus import CanBusConfig, CanBusLink, _frame_bit_times_reference, frame_bit_times
 from drivers.can.dbc import load_dbc
 from drivers.can.roles import RoleDecoder, RoleMap, encode_role_frame
 from vsccore.clock import SystemClock
@@ -122,7 +122,7 @@ def main() -> None:
         if "simulated" in label:
             decode_fast, decode_ref = times[1], times[0]
 
-    session = CanBusSession(CanBusConfig("virtual", "bench", bitrate=1_000_000, name="bench"), lambda f: None,
+    session = CanBusLink(CanBusConfig("virtual", "bench", bitrate=1_000_000, name="bench"), lambda f: None,
                             clock=SystemClock(), stats_window_s=1.0)
     msgs = [can.Message(arbitration_id=i, data=d, timestamp=1.7e9 + k * 125e-6, is_extended_id=False)
             for k, (i, d) in enumerate(sim_frames)]
@@ -135,7 +135,7 @@ def main() -> None:
                                   len(msgs), rep))
         finally:
             bus_mod.frame_bit_times = frame_bit_times
-    row("CanBusSession._deliver (with bit times)", times[0], times[1])
+    row("CanBusLink._deliver (with bit times)", times[0], times[1])
 
     before = (times[0] + decode_ref) * FULL_LOAD_FPS / 1e4
     after = (times[1] + decode_fast) * FULL_LOAD_FPS / 1e4

@@ -4,7 +4,7 @@ Prints, for eight channels at 1 kHz (a Correvit's five outputs, a brake-pressure
 sync line and a spare input):
 
 - the simulated DAQ's rendering rate (offline ``generate``) and the end-to-end rate of a
-  :class:`DaqSession` on the ``sim`` backend (backend chosen by name, health checks and sync
+  :class:`DaqLink` on the ``sim`` backend (backend chosen by name, health checks and sync
   detection on, a consumer that converts every block to optical samples), as multiples of real time;
 - optical ``convert_block`` and streaming ``SyncEdgeDetector`` throughput (samples/s);
 - sync-edge accuracy against the simulator's true pulse times (µs), for the cubic interpolation
@@ -26,7 +26,7 @@ import numpy as np
 
 from drivers.analog import brake_pressure_spec
 from drivers.can import FrameBatch, RoleDecoder, RoleMap, VectorRoleDecoder, load_dbc
-from drivers.daq import DaqBlock, DaqChannelConfig, DaqEvent, DaqEventKind, DaqSession, SyncEdgeDetector, find_edges
+from drivers.daq import DaqBlock, DaqChannelConfig, DaqEvent, DaqEventKind, DaqLink, SyncEdgeDetector, find_edges
 from drivers.optical import (
     OpticalCanAssembler,
     OpticalChannel,
@@ -142,7 +142,7 @@ def bench_session(seconds: float) -> None:
         "sync_channel": "sync", "sync_threshold_v": 2.5,
     }
     options: dict[str, Any] = {"truth": truth, "sources": sources, "truth_start_ns": T0_NS, "clock_ppm": 30.0}
-    session = DaqSession.from_config(cfg, on_block=on_block, on_event=on_event, clock=clock, backend_options=options)
+    session = DaqLink.from_config(cfg, on_block=on_block, on_event=on_event, clock=clock, backend_options=options)
     t0 = time.perf_counter()
     with session:
         done.wait(600.0)
@@ -151,7 +151,7 @@ def bench_session(seconds: float) -> None:
     t_edge = np.asarray(ref.sample_time_s(np.array([e.edge_index for e in edge_events]), 0.0, RATE))
     true = np.asarray(edges[: len(edge_events)])
     err_us = (t_edge - true) * 1e6
-    print(f"DaqSession sim->blocks->health->sync->optical: {blocks[0]} blocks of 100 in {dt:.2f} s = "
+    print(f"DaqLink sim->blocks->health->sync->optical: {blocks[0]} blocks of 100 in {dt:.2f} s = "
           f"{seconds / dt:,.0f}x real time ({8 * n_target / dt:,.0f} channel-samples/s)")
     print(f"  live sync edges ({len(edge_events)}, 30 ppm clock, 2 mV noise): error vs true pulse time "
           f"max {np.max(np.abs(err_us)):.2f} µs, rms {np.sqrt(np.mean(err_us**2)):.2f} µs")

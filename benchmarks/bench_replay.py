@@ -2,7 +2,7 @@
 
 A short simulated session is recorded (the shipped simulated car, a step steer; or ``--session PATH``), then
 its CAN frames are replayed at ``--speed`` by :class:`rig.replay.player.Replayer` and received by the rig's live
-reader (:class:`drivers.can.bus.CanBusSession`) in three set-ups:
+reader (:class:`drivers.can.bus.CanBusLink`) in three set-ups:
 
 - ``virtual/in``: a python-can virtual bus, the reader in the player's process (the bus stamps each frame
   in the player's own ``send``; the reader's thread competes with the player for the interpreter lock);
@@ -57,7 +57,7 @@ from typing import Any
 import can
 import numpy as np
 
-from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusSession, CanFrame, open_bus
+from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusLink, CanFrame, open_bus
 from rig.data import load_session
 from rig.replay.player import Replayer, ReplayPlan, ReplayStats, build_plan, parse_bus_spec, realtime_priority
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
@@ -91,7 +91,7 @@ class Receiver:
         self.host: list[int] = []
         self.opened = threading.Event()
         self.cond = threading.Condition()
-        self.session = CanBusSession(config, self.on_frame, self.on_event, clock=SystemClock(), stats_period_s=None)
+        self.session = CanBusLink(config, self.on_frame, self.on_event, clock=SystemClock(), stats_period_s=None)
 
     def on_frame(self, f: CanFrame) -> None:
         with self.cond:

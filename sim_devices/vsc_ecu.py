@@ -1017,7 +1017,7 @@ class SimulatedVscBus:
     """The simulated ECU on a python-can virtual channel of its own, optionally served by socketcand.
 
     In-process consumers open ``can.Bus(interface="virtual", channel=self.channel)`` (or a
-    :class:`~drivers.can.bus.CanBusSession` with interface ``virtual``); other processes connect
+    :class:`~drivers.can.bus.CanBusLink` with interface ``virtual``); other processes connect
     with python-can's ``socketcand`` interface to :attr:`address`, bus name ``bus_name``. GroundTruth
     time 0 is ``t0_ns`` on ``clock`` (see :class:`VscEcu`). ``port=0`` picks a free port, which
     :attr:`address` tells after :meth:`start`. :meth:`stop` stops the ECU, the server and closes

@@ -1,6 +1,6 @@
 """Live CAN bus session: one python-can interface, every frame with its device and host time.
 
-:class:`CanBusSession` opens any python-can interface named in a :class:`CanBusConfig`
+:class:`CanBusLink` opens any python-can interface named in a :class:`CanBusConfig`
 (``socketcan``, ``pcan``, ``kvaser``, ``vector``, ``slcan``, ``socketcand``, ``virtual``, …) and
 runs one reader thread that hands every frame, error frames included, to a consumer callback as
 a frozen :class:`CanFrame`. It keeps bus statistics (frames/s, bus load from the frames' bit
@@ -46,7 +46,7 @@ __all__ = [
     "BusStateChanged",
     "BusStats",
     "CanBusConfig",
-    "CanBusSession",
+    "CanBusLink",
     "CanFrame",
     "CanFrameFlag",
     "TimestampSource",
@@ -739,7 +739,7 @@ class _LostError(Exception):
 # --- the session -------------------------------------------------------------------------------
 
 
-class CanBusSession:
+class CanBusLink:
     """Reads one CAN bus on a thread; frames and events go to callbacks on that thread.
 
     ``on_frame`` gets every frame (error frames too) as a :class:`CanFrame`; ``on_event`` gets
@@ -840,7 +840,7 @@ class CanBusSession:
         if thread.is_alive():
             raise DeviceTimeoutError(f"{self.config.describe()}: reader thread did not stop within {timeout_s} s")
 
-    def __enter__(self) -> CanBusSession:
+    def __enter__(self) -> CanBusLink:
         self.start()
         return self
 

@@ -16,7 +16,7 @@ from .base import (
 )
 from .health import ChannelHealth, HealthLimits
 from .registry import ENTRY_POINT_GROUP, create_backend, known_backends, resolve_backend
-from .session import DaqSession, ReconnectPolicy
+from .link import DaqLink, ReconnectPolicy
 from .sync import Edge, EdgePolarity, SampleClockFit, SyncEdgeDetector, find_edges, fit_sample_clock
 
 __all__ = [
@@ -27,7 +27,7 @@ __all__ = [
     "DaqChannelConfig",
     "DaqEvent",
     "DaqEventKind",
-    "DaqSession",
+    "DaqLink",
     "Edge",
     "EdgePolarity",
     "HealthLimits",

@@ -121,7 +121,7 @@ class DaqBlock:
     ``data[i, j]`` is channel ``channels[i]`` at DAQ sample index ``first_sample_index + j`` (volts).
     ``lost_before`` is set on the first block after an overflow: those samples immediately precede
     this block and are gone. ``segment`` counts acquisitions (it increases when a
-    :class:`drivers.daq.session.DaqSession` restarts a disconnected device, and sample indices
+    :class:`drivers.daq.link.DaqLink` restarts a disconnected device, and sample indices
     restart at 0 with it).
     """
 
@@ -217,7 +217,7 @@ class DaqBackend(ABC):
 
     Life cycle: :meth:`configure` → :meth:`start` → :meth:`read` … → :meth:`stop` → (configure /
     start again) … → :meth:`close`. Not thread-safe: one thread reads (the
-    :class:`~drivers.daq.session.DaqSession`).
+    :class:`~drivers.daq.link.DaqLink`).
     """
 
     name: ClassVar[str] = "daq"
@@ -343,7 +343,7 @@ class DaqBackend(ABC):
         """Samples per channel acquired and not yet read (0 when not running or the backend cannot tell).
 
         A reader that fell behind takes them in one :meth:`read` instead of block by block (see
-        :class:`~drivers.daq.session.DaqSession`), so it catches up with one call's overhead. Never
+        :class:`~drivers.daq.link.DaqLink`), so it catches up with one call's overhead. Never
         raises for a device that has gone: the next :meth:`read` reports that.
         """
         if not self._running:

@@ -6,7 +6,7 @@ the volts; it never modifies or drops a sample.
 
 - saturation: samples at (within ``saturation_margin_v`` of) the input range limits, or non-finite
   (so a signal resting at 0 V on a 0–10 V input counts: give such channels a bipolar range or
-  ``check_low_end=False``, which :meth:`DaqSession.from_config` does for unipolar inputs);
+  ``check_low_end=False``, which :meth:`DaqLink.from_config` does for unipolar inputs);
 - stuck: the standard deviation over the trailing ``window_s`` is at most ``stuck_std_v``, i.e.
   nothing but the converter's own noise (a channel pulled to a constant, or a frozen sensor
   output). Channels that are legitimately constant for long (sync, status, brake pressure while

@@ -21,7 +21,7 @@ from drivers.can.bus import (
     BusStateChanged,
     BusStats,
     CanBusConfig,
-    CanBusSession,
+    CanBusLink,
     CanFrame,
     CanFrameFlag,
     open_bus,
@@ -91,7 +91,7 @@ class CanDevice(Device):
             rolemap = RoleMap.from_mapping(roles_table(cc), db, source=f"can.{cc.name}")
             self.decoder = RoleDecoder(db, rolemap)
         config = CanBusConfig.from_mapping(cc.model_dump(exclude={"dbc", "roles_file", "roles", "checks"}))
-        self.bus = CanBusSession(config, self._on_frame, self._on_event, clock=ctx.clock,
+        self.bus = CanBusLink(config, self._on_frame, self._on_event, clock=ctx.clock,
                                  bus_factory=bus_factory or open_bus,
                                  backoff_initial_s=ctx.reconnect.first_s, backoff_max_s=ctx.reconnect.max_s)
         self._lock = threading.Lock()

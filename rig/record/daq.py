@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 import rig.core.topics as T  # noqa: N812 - topics used as a namespace
-from drivers.daq import DaqBlock, DaqEvent, DaqEventKind, DaqSession
+from drivers.daq import DaqBlock, DaqEvent, DaqEventKind, DaqLink
 from drivers.optical import OpticalSensorSpec, convert_block
 from rig.core.config import DaqConfig, VehicleProfile
 from rig.core.timebase import FitStatus, SyncFit, align_sync_pulses
@@ -27,8 +27,8 @@ __all__ = ["DaqDevice", "DaqFactory", "DaqSegmentTiming"]
 log = logging.getLogger(__name__)
 
 
-DaqFactory = Callable[[DaqConfig, Clock, Callable[[DaqBlock], None], Callable[[DaqEvent], None]], DaqSession]
-"""Makes the DAQ session for ``[daq]`` (default: :meth:`drivers.daq.DaqSession.from_config`)."""
+DaqFactory = Callable[[DaqConfig, Clock, Callable[[DaqBlock], None], Callable[[DaqEvent], None]], DaqLink]
+"""Makes the DAQ session for ``[daq]`` (default: :meth:`drivers.daq.DaqLink.from_config`)."""
 
 
 _OPTICAL_MAX_HZ = 100.0
@@ -65,7 +65,7 @@ class DaqDevice(Device):
         if daq_factory is not None:
             self.daq = daq_factory(dc, ctx.clock, self._on_block, self._on_event)
         else:
-            self.daq = DaqSession.from_config(dc.model_dump(), on_block=self._on_block, on_event=self._on_event,
+            self.daq = DaqLink.from_config(dc.model_dump(), on_block=self._on_block, on_event=self._on_event,
                                               clock=ctx.clock)
 
     def start(self) -> None:

@@ -13,9 +13,9 @@ through one :class:`~rig.store.Recorder`, one bounded source per device:
   corrections out of that receiver's own stream; ``receiver:NAME`` as sink writes to the device
   wired to that receiver's correction port (or through its command port); the relayed frames on
   ``/relay/raw`` and its statistics on ``/relay/stats`` once a second;
-- each CAN bus (:class:`~drivers.can.bus.CanBusSession`): every frame in blocks on
+- each CAN bus (:class:`~drivers.can.bus.CanBusLink`): every frame in blocks on
   ``/can/<bus>/frames`` and, with a role map, one ``/can/<bus>/roles`` message per decoded frame;
-- the DAQ (:class:`~drivers.daq.DaqSession`): sample blocks on ``/daq/<device>/samples`` and the
+- the DAQ (:class:`~drivers.daq.DaqLink`): sample blocks on ``/daq/<device>/samples`` and the
   optical sensors wired to it (decimated to ≤ 100 Hz) on ``/optical/<sensor>``; its sample clock
   is put on GPS time from the sync-switch edges and the MARKTIME/MARKPOS of the same edges;
 - ``/rig/timebase`` quality records every ``timebase_period_s`` and at the end, and
@@ -183,7 +183,7 @@ class Recording:
         name: session name (default ``[output].name`` or ``session-<UTC time>``).
         clock: host clock (a simulated world's scaled clock; default the wall clock).
         ports: where the receivers' ports are (default: as configured).
-        daq_factory: makes the DAQ session (default :meth:`~drivers.daq.DaqSession.from_config`).
+        daq_factory: makes the DAQ session (default :meth:`~drivers.daq.DaqLink.from_config`).
         can_factory: opens a CAN interface (default :func:`drivers.can.bus.open_bus`).
         plugins: attached after the devices start, detached after they stop.
         config_path: the configuration file, attached to the recording.

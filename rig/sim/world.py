@@ -52,7 +52,7 @@ from drivers.daq import (
     DaqBlock,
     DaqChannelConfig,
     DaqEvent,
-    DaqSession,
+    DaqLink,
     EdgePolarity,
     HealthLimits,
     SyncEdgeDetector,
@@ -643,7 +643,7 @@ class SimWorld:
         clock: Clock,
         on_block: Callable[[DaqBlock], None],
         on_event: Callable[[DaqEvent], None],
-    ) -> DaqSession:
+    ) -> DaqLink:
         """A DAQ session on the simulated DAQ (the factory :class:`rig.record.recording.Recording` calls)."""
         if daq.backend != "sim":
             raise ConfigError(f"daq.backend: the simulated car has a 'sim' DAQ, not {daq.backend!r}")
@@ -680,7 +680,7 @@ class SimWorld:
         limits = {c.name: HealthLimits(check_stuck=False, check_low_end=False) for c in channels if c.min_v >= 0}
         limits.update({n: HealthLimits(check_saturation=False, check_stuck=False) for n in quiet})
         health = ChannelHealth(channels, limits=limits, default=HealthLimits(check_stuck=False), clock=clock)
-        return DaqSession(
+        return DaqLink(
             factory, channels, daq.rate_hz, on_block=on_block, on_event=on_event, clock=clock,
             block_size=daq.block_size, buffer_size=daq.buffer_samples, health=health, sync=detector,
             sync_channel=daq.sync_channel, name=daq.device,

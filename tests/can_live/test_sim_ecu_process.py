@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusSession, CanFrame, TimestampSource
+from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusLink, CanFrame, TimestampSource
 from drivers.can.checks import FrameFlag
 from drivers.can.dbc import load_dbc
 from drivers.can.roles import RoleDecoder, RoleMap
@@ -53,7 +53,7 @@ def test_ecu_process_frames_match_the_offline_frames_and_decode() -> None:
             config = CanBusConfig.from_mapping(
                 {"name": "vsc", "interface": "socketcand", "channel": "vsc0", "host": "127.0.0.1", "port": port}
             )
-            session = CanBusSession(config, received.put, events.put, clock=SystemClock(), backoff_initial_s=0.05)
+            session = CanBusLink(config, received.put, events.put, clock=SystemClock(), backoff_initial_s=0.05)
             session.start()
             try:
                 assert proc.wait(timeout=60.0) == 0

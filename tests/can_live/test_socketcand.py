@@ -15,7 +15,7 @@ from can.interfaces.socketcand.socketcand import (
     convert_can_message_to_ascii_message,
 )
 
-from drivers.can.bus import BusGap, BusLost, CanBusConfig, CanBusSession, CanFrame, open_bus
+from drivers.can.bus import BusGap, BusLost, CanBusConfig, CanBusLink, CanFrame, open_bus
 from sim_devices.socketcand import SocketcandServer, format_frame, parse_send, virtual_channel_opener
 from vsccore.clock import SystemClock
 from vsccore.errors import DeviceError
@@ -243,7 +243,7 @@ def test_bus_session_over_socketcand_recovers_when_the_server_comes_back(channel
     srv.start()
     port = srv.address[1]
     config = CanBusConfig(interface="socketcand", channel="vcan0", options={"host": "127.0.0.1", "port": port})
-    session = CanBusSession(
+    session = CanBusLink(
         config,
         frames.put,
         events.put,

@@ -15,7 +15,7 @@ import cantools
 import numpy as np
 import pytest
 
-from drivers.can.bus import CanBusConfig, CanBusSession, CanFrame
+from drivers.can.bus import CanBusConfig, CanBusLink, CanFrame
 from drivers.can.checks import FrameFlag, get_checksum
 from drivers.can.roles import RoleDecoder, RoleMap
 from drivers.can.vector_decode import FrameBatch, VectorRoleDecoder
@@ -269,7 +269,7 @@ def test_ecu_runs_in_scaled_time_on_a_virtual_bus(channel: str, db) -> None:
     t0_ns = 1_700_000_000_000_000_000
     clock = ScaledClock(t0_ns - 300_000_000, speed=10.0)
     received: queue.Queue[CanFrame] = queue.Queue()
-    session = CanBusSession(CanBusConfig(interface="virtual", channel=channel), received.put, clock=clock)
+    session = CanBusLink(CanBusConfig(interface="virtual", channel=channel), received.put, clock=clock)
     with can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as ecu_bus, session:
         # a loaded machine may start the ECU late: it then catches up instead of skipping frames
         ecu = VscEcu(truth, ecu_bus, clock, t0_ns, outputs=outputs, max_lag_s=60.0)

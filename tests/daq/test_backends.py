@@ -17,7 +17,7 @@ from drivers.daq import (
     DaqChannelConfig,
     DaqEvent,
     DaqEventKind,
-    DaqSession,
+    DaqLink,
     ReconnectPolicy,
     TerminalConfig,
     create_backend,
@@ -249,7 +249,7 @@ def test_session_on_nidaqmx_reconnects_after_the_device_was_unplugged(monkeypatc
         "buffer_samples": 2000,
         "channels": [{"name": "vx", "physical": "Dev1/ai0"}, {"name": "sync", "physical": "Dev1/ai7"}],
     }
-    session = DaqSession.from_config(
+    session = DaqLink.from_config(
         cfg, on_block=on_block, on_event=events.put, clock=ManualClock(),
         reconnect=ReconnectPolicy(initial_s=0.01, max_s=0.05),
     )

@@ -2,7 +2,7 @@
 
 ``rig/examples/sim.toml`` is loaded with the real configuration model; its ``[[optical]]``,
 ``[calibration]`` and ``[daq]`` tables build the optical spec, the analog specs and a
-:class:`DaqSession` on the ``sim`` backend chosen by name; the blocks are converted and compared
+:class:`DaqLink` on the ``sim`` backend chosen by name; the blocks are converted and compared
 with the ground truth.
 """
 
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from drivers.analog import AnalogChannelSpec, AnalogDecoder
-from drivers.daq import DaqBlock, DaqChannelConfig, DaqEvent, DaqEventKind, DaqSession, TerminalConfig
+from drivers.daq import DaqBlock, DaqChannelConfig, DaqEvent, DaqEventKind, DaqLink, TerminalConfig
 from drivers.optical import OpticalRole, OpticalSensorSpec, SensorKind, convert_block, transfer_to_point
 from rig.core.config import AnalogChannelConfig, OpticalSensorConfig, load_session
 from sim_devices.daq import SimDaqBackend, SimOpticalSensor, SyncPulseOutput, sim_daq_sources
@@ -83,7 +83,7 @@ def recorded() -> dict[str, Any]:
         if b.next_sample_index >= 11_000:
             enough.set()
 
-    session = DaqSession.from_config(
+    session = DaqLink.from_config(
         daq_cfg,
         on_block=on_block,
         on_event=events.append,
@@ -223,4 +223,4 @@ def test_daq_channel_from_config_and_errors() -> None:
         DaqChannelConfig.from_config({"name": "x", "physical": "ai0", "terminal": "single"})
     base = {"backend": "labjack", "device": "X", "rate_hz": 1000.0, "channels": [{"name": "a", "physical": "ai0"}]}
     with pytest.raises(ConfigError, match="unknown DAQ backend 'labjack'"):
-        DaqSession.from_config(base, on_block=lambda b: None)
+        DaqLink.from_config(base, on_block=lambda b: None)

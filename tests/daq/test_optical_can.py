@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from drivers.can import FrameBatch, RoleDecoder, RoleMap, VectorRoleDecoder, load_dbc
-from drivers.can.bus import CanBusConfig, CanBusSession, CanFrame
+from drivers.can.bus import CanBusConfig, CanBusLink, CanFrame
 from drivers.optical import (
     OpticalCanAssembler,
     OpticalChannel,
@@ -111,7 +111,7 @@ def test_below_min_speed_the_quality_bits_make_samples_invalid(db, rolemap) -> N
 
 
 def _send_and_assemble(db, rolemap, spec, frames, channel: str) -> tuple[OpticalSample, list[tuple[int, int, bytes]]]:
-    """Send frames over a python-can virtual bus; a CanBusSession receives them and the live path decodes."""
+    """Send frames over a python-can virtual bus; a CanBusLink receives them and the live path decodes."""
     decoder = RoleDecoder(db, rolemap)
     assembler = OpticalCanAssembler(spec, rolemap)
     parts: list[OpticalSample] = []
@@ -128,7 +128,7 @@ def _send_and_assemble(db, rolemap, spec, frames, channel: str) -> tuple[Optical
             done.set()
 
     config = CanBusConfig(interface="virtual", channel=channel, bitrate=None, name="correvit")
-    session = CanBusSession(config, on_frame, clock=ScaledClock(T0_NS), stats_period_s=None)
+    session = CanBusLink(config, on_frame, clock=ScaledClock(T0_NS), stats_period_s=None)
     with session, can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as tx:
         for ts, fid, data in frames:
             tx.send(can.Message(timestamp=ts / 1e9, arbitration_id=fid, data=data, is_extended_id=False))

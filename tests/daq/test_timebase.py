@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drivers.daq import DaqEvent, DaqEventKind, DaqSession, fit_sample_clock
+from drivers.daq import DaqEvent, DaqEventKind, DaqLink, fit_sample_clock
 from sim_devices.daq import SimDaqBackend, SyncPulseOutput
 from tests.daq.helpers import T0_NS, ManualClock, steady_circle
 from vsccore.gpstime import gps_to_ns
@@ -43,7 +43,7 @@ def daq_config(sync_threshold_v: float = 2.5) -> dict:
 
 @pytest.fixture(scope="module")
 def live_edges() -> tuple[list[DaqEvent], list[int], SimDaqBackend]:
-    """Run a DaqSession from the configuration on the simulated DAQ until every pulse was seen."""
+    """Run a DaqLink from the configuration on the simulated DAQ until every pulse was seen."""
     schedule = pulse_schedule()
     truth = steady_circle(duration=22.0)
     options: dict[str, Any] = {
@@ -68,7 +68,7 @@ def live_edges() -> tuple[list[DaqEvent], list[int], SimDaqBackend]:
         else:
             other.append(ev)
 
-    session = DaqSession.from_config(
+    session = DaqLink.from_config(
         daq_config(), on_block=lambda b: None, on_event=on_event, clock=clock, backend_options=options
     )
     with session:

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import rig.core.topics as T  # noqa: N812 - short alias
-from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusSession, CanFrame, CanFrameFlag
+from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusLink, CanFrame, CanFrameFlag
 from rig.data import Session, load_session
 from rig.replay.player import realtime_priority
 from rig.store import Attachment, Recorder, RecorderOptions, session_metadata
@@ -29,13 +29,13 @@ from vsccore.clock import SystemClock
 
 
 class ReceivingRecorder:
-    """A :class:`CanBusSession` (the recorder's reader) that keeps every frame; :meth:`write` records them."""
+    """A :class:`CanBusLink` (the recorder's reader) that keeps every frame; :meth:`write` records them."""
 
     def __init__(self, config: CanBusConfig) -> None:
         self.frames: list[CanFrame] = []
         self.opened = threading.Event()
         self._cond = threading.Condition()
-        self.session = CanBusSession(config, self._on_frame, self._on_event, clock=SystemClock(), stats_period_s=None)
+        self.session = CanBusLink(config, self._on_frame, self._on_event, clock=SystemClock(), stats_period_s=None)
 
     def _on_frame(self, frame: CanFrame) -> None:
         with self._cond:

@@ -1,4 +1,4 @@
-"""CanBusSession against python-can virtual buses and a fault-injecting bus."""
+"""CanBusLink against python-can virtual buses and a fault-injecting bus."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from drivers.can.bus import (
     BusStateChanged,
     BusStats,
     CanBusConfig,
-    CanBusSession,
+    CanBusLink,
     CanFrame,
     CanFrameFlag,
     TimestampSource,
@@ -63,10 +63,10 @@ class Collector:
         return [self.frames.get(timeout=timeout) for _ in range(n)]
 
 
-def _session(channel: str, col: Collector, **kw: Any) -> CanBusSession:
+def _session(channel: str, col: Collector, **kw: Any) -> CanBusLink:
     cfg_kw = {k: kw.pop(k) for k in ("bitrate", "fd", "data_bitrate") if k in kw}
     config = CanBusConfig(interface="virtual", channel=channel, name="test", **cfg_kw)
-    return CanBusSession(config, col.frame, col.event, clock=ScaledClock(T0_NS), **kw)
+    return CanBusLink(config, col.frame, col.event, clock=ScaledClock(T0_NS), **kw)
 
 
 # --- frames --------------------------------------------------------------------------------------
@@ -221,9 +221,9 @@ def test_session_bus_load_from_a_known_frame_rate(channel: str) -> None:
 # --- recovery -------------------------------------------------------------------------------------
 
 
-def _faulty_session(channel: str, col: Collector, plug: Plug, **kw: Any) -> CanBusSession:
+def _faulty_session(channel: str, col: Collector, plug: Plug, **kw: Any) -> CanBusLink:
     config = CanBusConfig(interface="faulty", channel=channel, name="faulty")
-    return CanBusSession(config, col.frame, col.event, clock=ScaledClock(T0_NS), bus_factory=faulty_factory(plug), **kw)
+    return CanBusLink(config, col.frame, col.event, clock=ScaledClock(T0_NS), bus_factory=faulty_factory(plug), **kw)
 
 
 def test_interface_that_disappears_and_comes_back_is_reopened(channel: str) -> None:
@@ -285,7 +285,7 @@ def test_a_failing_consumer_stops_the_session_and_is_kept(channel: str) -> None:
         raise ValueError(f"consumer cannot take 0x{frame.arbitration_id:X}")
 
     config = CanBusConfig(interface="virtual", channel=channel)
-    session = CanBusSession(config, bad_consumer, clock=ScaledClock(T0_NS))
+    session = CanBusLink(config, bad_consumer, clock=ScaledClock(T0_NS))
     session.start()
     with can.Bus(interface="virtual", channel=channel) as tx:
         tx.send(can.Message(arbitration_id=0x7, data=b""))
@@ -303,7 +303,7 @@ def test_first_open_failure_is_a_device_error_naming_the_bus() -> None:
     plug = Plug()
     plug.unplug()
     config = CanBusConfig(interface="faulty", channel="gone", name="chassis")
-    session = CanBusSession(config, lambda f: None, clock=ScaledClock(T0_NS), bus_factory=faulty_factory(plug))
+    session = CanBusLink(config, lambda f: None, clock=ScaledClock(T0_NS), bus_factory=faulty_factory(plug))
     with pytest.raises(can.CanInitializationError):
         session.start()
     with pytest.raises(DeviceError, match="chassis"):

@@ -1,4 +1,4 @@
-"""DaqSession: thread start/stop/join, contiguous blocks, overflow and health events, reconnect, errors."""
+"""DaqLink: thread start/stop/join, contiguous blocks, overflow and health events, reconnect, errors."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from drivers.daq import (
     DaqChannelConfig,
     DaqEvent,
     DaqEventKind,
-    DaqSession,
+    DaqLink,
     HealthLimits,
     ReconnectPolicy,
 )
@@ -73,7 +73,7 @@ def assert_contiguous(blocks: list[DaqBlock]) -> None:
 def test_session_delivers_contiguous_blocks_and_stops_promptly() -> None:
     clock = ScaledClock(T0_NS, speed=20.0)
     col = Collector(want_blocks=15)
-    session = DaqSession(
+    session = DaqLink(
         lambda: SimDaqBackend(clock=clock, sources=SOURCES, truth_start_ns=T0_NS),
         CHANS, RATE, on_block=col.on_block, on_event=col.on_event, clock=clock, block_size=100,
     )
@@ -107,7 +107,7 @@ def test_overflow_is_reported_and_no_earlier_sample_is_lost() -> None:
             clock.advance(3.0)  # the consumer takes 3 s of DAQ time on this block: the 1 s buffer overflows
         col.on_block(block)
 
-    session = DaqSession(
+    session = DaqLink(
         lambda: SimDaqBackend(clock=clock, sources=SOURCES, truth_start_ns=T0_NS),
         CHANS, RATE, on_block=slow_consumer, on_event=col.on_event, clock=clock, block_size=100, buffer_size=1000,
     )
@@ -135,7 +135,7 @@ def test_reader_that_fell_behind_catches_up_in_one_read_without_loss() -> None:
             clock.advance(0.65)  # 650 samples pile up in the 1000-sample buffer: no overflow
         col.on_block(block)
 
-    session = DaqSession(
+    session = DaqLink(
         lambda: SimDaqBackend(clock=clock, sources=SOURCES, truth_start_ns=T0_NS),
         CHANS, RATE, on_block=slow_consumer, on_event=col.on_event, clock=clock, block_size=100, buffer_size=1000,
         catch_up_s=0.5,
@@ -171,7 +171,7 @@ def test_reconnects_after_the_device_disappears() -> None:
         if block.segment == 2 and block.first_sample_index >= 300:
             col.enough.set()
 
-    session = DaqSession(
+    session = DaqLink(
         factory, CHANS, RATE, on_block=on_block, on_event=col.on_event, clock=clock, block_size=100,
         reconnect=ReconnectPolicy(initial_s=0.01, max_s=0.05),
     )
@@ -199,7 +199,7 @@ def test_gives_up_after_max_attempts() -> None:
         raise DeviceError("DAQ Dev1: device not found")
 
     col = Collector()
-    session = DaqSession(
+    session = DaqLink(
         factory, CHANS, RATE, on_block=col.on_block, on_event=col.on_event,
         reconnect=ReconnectPolicy(initial_s=0.0, max_s=0.0, max_attempts=3),
     )
@@ -222,7 +222,7 @@ def test_configuration_error_is_not_retried() -> None:
         return SimDaqBackend(clock=ManualClock(), sources=sources)  # no truth: configure() fails
 
     col = Collector()
-    session = DaqSession(factory, chans, RATE, on_block=col.on_block, on_event=col.on_event)
+    session = DaqLink(factory, chans, RATE, on_block=col.on_block, on_event=col.on_event)
     session.start()
     assert session.join(10.0)
     assert len(calls) == 1
@@ -240,7 +240,7 @@ def test_consumer_exception_ends_the_session_visibly() -> None:
             raise ValueError("consumer bug")
         col.on_block(block)
 
-    session = DaqSession(
+    session = DaqLink(
         lambda: SimDaqBackend(clock=clock, sources=SOURCES, truth_start_ns=T0_NS),
         CHANS, RATE, on_block=bad_consumer, on_event=col.on_event, clock=clock, block_size=100,
     )
@@ -257,7 +257,7 @@ def test_health_events_flow_through_the_session() -> None:
     truth = steady_circle(duration=5.0)
     chans = [DaqChannelConfig("railed", "sim/ai0"), DaqChannelConfig("open", "sim/ai1")]
     col = Collector(want_blocks=25)
-    session = DaqSession(
+    session = DaqLink(
         lambda: SimDaqBackend(clock=clock, truth=truth, sources={"sim/ai0": ConstantInput(-10.5)},
                               truth_start_ns=T0_NS),
         chans, RATE, on_block=col.on_block, on_event=col.on_event, clock=clock, block_size=100,
@@ -274,6 +274,6 @@ def test_health_events_flow_through_the_session() -> None:
 
 def test_constructor_checks() -> None:
     with pytest.raises(ConfigError, match="rate_hz"):
-        DaqSession(lambda: SimDaqBackend(), CHANS, 0.0, on_block=lambda b: None)
+        DaqLink(lambda: SimDaqBackend(), CHANS, 0.0, on_block=lambda b: None)
     with pytest.raises(ConfigError, match="unique"):
-        DaqSession(lambda: SimDaqBackend(), CHANS + CHANS, RATE, on_block=lambda b: None)
+        DaqLink(lambda: SimDaqBackend(), CHANS + CHANS, RATE, on_block=lambda b: None)

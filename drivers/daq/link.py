@@ -1,21 +1,21 @@
 """A reader thread around a DAQ backend: blocks to a consumer, events to an event callback, reconnects.
 
-:class:`DaqSession` creates a backend with a factory, configures and starts it, reads fixed-size
+:class:`DaqLink` creates a backend with a factory, configures and starts it, reads fixed-size
 blocks and hands each to ``on_block``. Overflows (reported by the backend on the block after the
 gap), health events (:class:`~drivers.daq.health.ChannelHealth`) and connection changes go to
 ``on_event``. If the device fails or disappears (:class:`~vsccore.errors.DeviceError`, or a read
 timeout), the backend is closed and a new one is made after a back-off that waits on the stop
-event, so :meth:`DaqSession.stop` is immediate. Each (re)start is a new *segment*: sample indices
+event, so :meth:`DaqLink.stop` is immediate. Each (re)start is a new *segment*: sample indices
 restart at 0, and every block and event carries its segment number.
 
 A configuration error is not retried (it would fail the same way forever), and an exception from
 a callback is not swallowed: either ends the thread with an ``ERROR`` event and is kept in
-:attr:`DaqSession.error`.
+:attr:`DaqLink.error`.
 
 With a sync channel, every edge of the sync pulse is reported as a ``SYNC_EDGE`` event whose
 ``edge_index`` is the fractional sample index of the edge (:class:`~drivers.daq.sync.SyncEdgeDetector`).
 
-:meth:`DaqSession.from_config` builds all of it from the session configuration's ``[daq]`` table:
+:meth:`DaqLink.from_config` builds all of it from the session configuration's ``[daq]`` table:
 the backend by name (:func:`~drivers.daq.registry.resolve_backend`), the channels, the rate, block
 and buffer sizes, a default channel-health checker and the sync-edge detector.
 """
@@ -60,7 +60,7 @@ class _ConsumerError(Exception):
     """Wraps an exception raised by a callback so the loop can tell it from a device failure."""
 
 
-class DaqSession:
+class DaqLink:
     """Reads blocks from a (re)connected DAQ backend in a thread.
 
     Blocks are ``block_size`` samples; a reader that fell behind takes every whole block waiting
@@ -139,7 +139,7 @@ class DaqSession:
         reconnect: ReconnectPolicy | None = None,
         read_timeout_s: float | None = None,
         where: str = "daq",
-    ) -> DaqSession:
+    ) -> DaqLink:
         """A session for the configuration's ``[daq]`` table (``DaqConfig.model_dump()`` of ``rig.core.config``).
 
         Uses ``backend`` (a registry name: ``sim``, ``nidaqmx`` or an entry point), ``device``,
