@@ -1,10 +1,10 @@
-"""Time-base quality of every stream of a session: a verdict good / degraded / unusable, and the gates.
+"""Time-base quality of a stream: the thresholds, the verdict good / degraded / unusable, the gate, and the
+verdicts a recorder gives at finalize.
 
-A result computed from a stream whose timing cannot be trusted is not a result. This module turns
-what a session file holds (the message times, the raw CAN stamps, ``/rig/timebase``) into one
-:class:`StreamQuality` per stream — ``gnss:<receiver>``, ``can:<bus>``, ``daq:<device>`` — with the
-figures, the thresholds they were judged against and the fix, and :func:`gate` makes every command
-that uses a stream check it: degraded → a warning that the command shows in its headline, unusable →
+A result computed from a stream whose timing cannot be trusted is not a result. One
+:class:`StreamQuality` per stream — ``gnss:<receiver>``, ``can:<bus>``, ``daq:<device>`` — carries the
+figures, the thresholds they were judged against and the fix (a recorded session's verdicts:
+:mod:`rig.data.verdicts`), and :func:`gate` makes every command that uses a stream check it: degraded → a warning that the command shows in its headline, unusable →
 :class:`TimingQualityError` (exit status 2) naming the stream, the figure and the fix.
 
 The figures (each judged by :data:`THRESHOLDS`, the one place the limits live):
@@ -57,38 +57,13 @@ does not, a figure that exceeds the truth by ``h_host + FLOOR_ALLOWANCE_MS − d
 by what the DAQ's prompt delivery exceeds the floors and the allowance). ``c`` is robust to wild
 stamps: it must be held by three half-seconds within 10 s (:func:`rig.core.timebase.causality_bound_ns`).
 
-Measured against the simulator's truth (``benchmarks/study_timebase_gate.py`` and
-``tests/quality/test_map_error.py``; CAN figure / true max error): governed at 1×, 0.20 / 0.11 ms
-(host map 0.20 / 0.18 ms); governed at 8×, 0.27–0.61 ms / ≤ 0.14 ms in six runs, where the previous
-figure — the 95th percentile per second of the lowest pair's height, which read every second whose
-frames were all late as map error — gave 0.50–1.21 ms (degraded in two of the six; 1.03–1.34 ms on
-stressed demo runs whose true error was ≤ 42 µs); a starved reader 1623 ms / 2.3 ms, unusable (its
-floor rose by seconds: a backlog and a runaway clock look alike, and the stream also ended early).
-A constant latency beyond the allowance — the simulated receivers writing late on the free-running
-clock under load, 1.1–2.5 ms of constant offset, true CAN error 1.6–2.8 ms — was rated good at
-0.51–0.63 ms before the causality bound (H31) and is now seen by it. Free-running at 1× (load
-average 11–17 on 2 cores): causality 3.43 ms against a host map 3.62 ms early (median; at most
-4.13), CAN figure 4.37 / true 4.06 ms, degraded (the floor bound alone: 0.94 ms, good); starved:
-causality 6.20 ms, host map 6.83 ms early. The reference receiver's output latency configured 2 ms
-short on the governed clock: causality 1.43 ms at 1× and 1.91–1.93 ms at 8×, CAN figure 1.64 / true
-2.02 ms at 1× and 2.41–2.45 / 2.02–2.07 ms at 8× (the recorder's own verdicts the same), degraded,
-where the floor bound alone gave 0.21–0.82 ms (good). The shortfall is the DAQ's prompt delivery
-latency, which the simulated clock scales with its speed: at 8× under a load average of 15–25 it
-reached 1.0 ms of simulated time (causality 0.98 ms for a 2 ms offset, 1.97 ms for 3 ms; CAN
-figures 1.47 / 2.01 and 2.35 / 3.03 ms, still degraded). Governed and correctly configured: causality
-0 at 1×, 0.05 ms at 8× (that host map is 0.1 ms early: inside the allowance), so those figures
-barely move. A session without a synchronised DAQ (no sync channel, no MARKTIME) has no causality
-evidence and keeps the allowance alone. The DAQ's sync-pulse RMS (≤ 1 µs) sits beside a true error
-of 1–3 µs.
-
 Rationale of the limits: the reference smoother (:mod:`rig.analysis.reference`) propagates the
 heading between 20 Hz GNSS epochs (50 ms) with the CAN yaw rate, and its error budget asks for a
 yaw-rate timing error ≪ 10 ms: at 1 ms the β reference is indistinguishable from perfect timing
-(good), above 5 ms — half the budget — it visibly degrades (issue 15 measured 7.8–30.9° RMS with
-seconds of lag), so that is unusable. A stream missing more than 10 % of the session leaves
-manoeuvres unscored or cut (the starved recordings of issue 15 lost 30–36 %); any gap at all is worth a
-warning — a second lost at the end of a short recording at 8× (the CAN reader's backlog when the
-devices stop) is one.
+(good), above 5 ms — half the budget — it visibly degrades, so that is unusable. A stream missing
+more than 10 % of the session leaves manoeuvres unscored or cut; any gap at all is worth a warning.
+The bound checked against the simulator's truth, and the figures behind the limits:
+``docs/decisions/0006-timebase-verdicts.md``.
 """
 
 from __future__ import annotations

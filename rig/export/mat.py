@@ -79,9 +79,8 @@ NULL_NS = int(np.iinfo(np.int64).min)
 """A missing integer-nanosecond value in a MAT file (MATLAB's ``intmin('int64')``)."""
 
 CHUNK_BYTES = 64 << 10
-"""Uncompressed bytes of one HDF5 chunk (and so of the most a field buffers before writing). On the one-hour
-benchmark session (220 fields) 64 KiB gave a lower peak RSS than 256 KiB (386 against 414 MB), a file 3 %
-larger and no slower."""
+"""Uncompressed bytes of one HDF5 chunk (and so of the most a field buffers before writing): the smaller
+chunk keeps the peak memory lower at no cost in speed (``benchmarks/bench_export.py``)."""
 _GZIP_LEVEL = 1
 _MATLAB_CLASS = {
     np.dtype(np.float64): "double", np.dtype(np.float32): "single",
@@ -358,9 +357,8 @@ def _sideslip(stream: SessionStream, warnings: list[str]) -> tuple[dict[str, npt
 
     Memory: the session is read with ``load_inputs(bounded_memory=True)`` (only the GNSS logs, the events and
     the CAN roles asked for; each bus decoded a batch of blocks at a time) and only the reference and the
-    estimate are computed (:func:`_sideslip_series`): on the one-hour benchmark session about 0.5 GB above what
-    the export holds before it (0.86 GB peak RSS in all), instead of 2.9 GB above it through
-    ``rig.data.inputs.load_inputs`` + ``rig.evaluate.validate.validate_session`` (3.3 GB peak).
+    estimate are computed (:func:`_sideslip_series`), not the whole validation (its peak memory against the
+    full path: ``benchmarks/bench_export.py``).
     """
     try:
         from rig.data.inputs import load_inputs

@@ -750,19 +750,15 @@ class Replayer:
     bounded: when two readings of the clock are equal (a paused governed clock, a clock too coarse to spin on,
     a test's) the clock's own sleep finishes the wait. ``spin_s=0`` waits with the clock's sleep alone. The
     spin is short (0.3 ms) because it costs CPU time, and the fair scheduler lets a thread that used more of
-    it wait longer when it wakes: a recorded bus's frames are about 2.4 ms apart (median), so a 1.5 ms spin
-    kept the player on a CPU 60 % of the time, and on a 2-core host at a load of 9-13 about three times as
-    many frames went out over 1 ms late as with 0.3 ms (``benchmarks/bench_replay.py``). For the same reason
+    it wait longer when it wakes (a longer spin sent more frames late on a loaded host). For the same reason
     the player thread asks the kernel for a short time slice, ``slice_s`` (Linux >= 6.12, no privilege
     needed; None leaves the scheduler's default): a thread with a shorter slice gets an earlier deadline and
-    takes the CPU from a busy process sooner when it wakes (35-45 % fewer frames over 1 ms at a load of
-    7-13). At a load over about 17 neither makes a difference: the player waits for the CPU for many ms.
+    takes the CPU from a busy process sooner when it wakes. On a heavily loaded host neither helps: the
+    player waits for the CPU. The figures: ``benchmarks/bench_replay.py``.
 
     Real-time priority. ``rt_priority`` (1-99; ``rig replay --rt-priority``) puts the player thread on the
     kernel's ``SCHED_FIFO`` policy for :meth:`run`: it then takes a CPU from any ordinary process the moment
-    its sleep ends, whatever the load (measured on a 2-core VM with 6 busy processes: send lateness p99
-    13-25 µs against 4.5-5.4 ms ordinary, and 0-4 frames over 1 ms a run against 310-455, those left where
-    the hypervisor took the virtual CPU; ``benchmarks/bench_replay.py --rt-priority 50``). It needs root,
+    its sleep ends, whatever the load (``benchmarks/bench_replay.py --rt-priority 50``). It needs root,
     ``CAP_SYS_NICE`` or an ``rtprio`` limit of at least that priority (``/etc/security/limits.conf``); without
     one, :meth:`run` refuses with that fix rather than play with ordinary timing. The kernel's real-time
     throttling (95 % of each second by default) still leaves ordinary processes CPU time, and the spin between
@@ -948,10 +944,8 @@ class Replayer:
 def _let_threads_run() -> None:
     """Release the interpreter lock for a moment without giving up the CPU.
 
-    A zero-timeout ``select`` releases the lock (a thread waiting for it gets it; measured: its wake-up p50
-    85 µs late with this, 784 µs with a spin that never releases it) and returns in about 1 µs.
-    ``time.sleep(0)`` would also release it but enters the scheduler: about 170 µs per call on the rig's
-    2-core machine under load, as other processes get the CPU. Windows' select needs a socket: it sleeps 0.
+    A zero-timeout ``select`` releases the lock (a thread waiting for it gets it) and returns at once;
+    ``time.sleep(0)`` would also release it but enters the scheduler, where other processes take the CPU. Windows' select needs a socket: it sleeps 0.
     """
     if os.name == "nt":
         time.sleep(0)
