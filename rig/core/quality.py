@@ -4,7 +4,8 @@ verdicts a recorder gives at finalize.
 A result computed from a stream whose timing cannot be trusted is not a result. One
 :class:`StreamQuality` per stream — ``gnss:<receiver>``, ``can:<bus>``, ``daq:<device>`` — carries the
 figures, the thresholds they were judged against and the fix (a recorded session's verdicts:
-:mod:`rig.data.verdicts`), and :func:`gate` makes every command that uses a stream check it: degraded → a warning that the command shows in its headline, unusable →
+:mod:`rig.data.verdicts`), and :func:`gate` makes every command that uses a stream check it: degraded → a
+warning that the command shows in its headline, unusable →
 :class:`TimingQualityError` (exit status 2) naming the stream, the figure and the fix.
 
 The figures (each judged by :data:`THRESHOLDS`, the one place the limits live):

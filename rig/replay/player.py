@@ -945,7 +945,8 @@ def _let_threads_run() -> None:
     """Release the interpreter lock for a moment without giving up the CPU.
 
     A zero-timeout ``select`` releases the lock (a thread waiting for it gets it) and returns at once;
-    ``time.sleep(0)`` would also release it but enters the scheduler, where other processes take the CPU. Windows' select needs a socket: it sleeps 0.
+    ``time.sleep(0)`` would also release it but enters the scheduler, where other processes take the CPU.
+    Windows' select needs a socket: it sleeps 0.
     """
     if os.name == "nt":
         time.sleep(0)
