@@ -37,7 +37,7 @@ def run(drive: str, speed: float, clients: int, live: bool, token: str | None = 
     from rig.live import LIVE_TOPICS, LiveOptions, LiveView
     from rig.live.layout import message_paths, session_layout
     from rig.record.recording import Recording
-    from rig.sim.world import record_simulated
+    from rig.sim.record import record_simulated
     from tests.live.wsclient import collect
     from tests.session.recording import FAST_RTK, config
 

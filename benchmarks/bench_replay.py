@@ -68,7 +68,7 @@ MS = 1_000_000
 
 def record_source(out: Path) -> Path:
     from rig.core.config import load_session as load_config
-    from rig.sim.world import record_simulated
+    from rig.sim.record import record_simulated
     from rig.workflows.demo import demo_config_path
     from sim_devices.gnss import RtkParams
     from sim_devices.vehicle.scenarios import make_scenario

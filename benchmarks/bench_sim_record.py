@@ -23,7 +23,8 @@ import pymap3d
 from rig.core.config import load_session
 from rig.data import align
 from rig.data import load_session as load_recording
-from rig.sim.world import gnss_min_latency_s, record_simulated, timing_vs_truth
+from rig.sim.record import record_simulated
+from rig.sim.truth import gnss_min_latency_s, timing_vs_truth
 from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle.geodesy import point_geodetic

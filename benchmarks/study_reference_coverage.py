@@ -1,7 +1,7 @@
 """Coverage of the GNSS reference sideslip's 95 % band, manoeuvre by manoeuvre, on recorded sessions.
 
 Each case is a short drive (a straight approach at the manoeuvre's speed, then the manoeuvre)
-recorded through the real recording path (:func:`rig.sim.world.record_simulated`: base and two
+recorded through the real recording path (:func:`rig.sim.record.record_simulated`: base and two
 rovers on pseudo-terminals with the correction relay, the VSC ECU on a virtual CAN bus) with the
 shipped simulated car and its default, time-correlated GNSS noise, at a modest clock speed. The
 reference is computed as ``rig validate`` computes it and scored against ``/sim/truth`` over the
@@ -46,7 +46,7 @@ import numpy as np
 from rig.core.config import load_session
 from rig.data.inputs import SessionInputs, load_inputs
 from rig.evaluate.validate import validate_session
-from rig.sim.world import record_simulated
+from rig.sim.record import record_simulated
 from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, make_scenario, simulate

@@ -49,7 +49,9 @@ from rig.core.timebase import ClockEstimator
 from rig.data import Session, load_session
 from rig.data.verdicts import daq_causality_ns, session_verdicts
 from rig.record.recording import Recording
-from rig.sim.world import SimWorld, record_simulated, timing_vs_truth
+from rig.sim.record import record_simulated
+from rig.sim.truth import timing_vs_truth
+from rig.sim.world import SimWorld
 from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle.scenarios import make_scenario

@@ -147,7 +147,7 @@ def test_constants_mirrored_in_the_command_modules_match_their_sources() -> None
     from drivers.relay.endpoints import DEFAULT_NTRIP_PASSWORD_ENV, DEFAULT_NTRIP_USER_ENV
     from rig.analysis.reference import ReferenceMethod
     from rig.cli import analysis_cmd, record_cmd, relay_cmd, sim_cmd
-    from rig.sim.world import FAST_SPEED
+    from rig.sim.record import FAST_SPEED
     from sim_devices.vehicle import TRUTH_FILE_SUFFIXES
 
     assert [m.value for m in analysis_cmd.ReferenceChoice] == [m.value for m in ReferenceMethod]

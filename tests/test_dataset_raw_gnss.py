@@ -42,7 +42,7 @@ from rig.core.config import load_session as load_config
 from rig.data import Session, Table, load_session
 from rig.data.session import _columns, gnss_record_columns
 from rig.record.gnss import _heading, _marktime, _position, _time, _velocity
-from rig.sim.world import record_simulated
+from rig.sim.record import record_simulated
 from rig.workflows.demo import demo_config_path
 from sim_devices.vehicle.scenarios import make_scenario
 from tests.novatel.gen import sample_bestpos

@@ -371,7 +371,7 @@ def test_the_clock_stays_governed_while_the_session_stops(tmp_path: object, monk
     from pathlib import Path
 
     from rig.record.recording import Recording
-    from rig.sim.world import record_simulated
+    from rig.sim.record import record_simulated
     from tests.session.recording import FAST_RTK, config
 
     seen: list[tuple[bool, bool]] = []

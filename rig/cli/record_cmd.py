@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 
 # the recorder and the simulator are imported by the commands that use them (``rig --help`` stays fast)
 FAST_SPEED = 3.0
-"""``rig.sim.world.FAST_SPEED`` (the --fast clock factor; a test keeps the two equal)."""
+"""``rig.sim.record.FAST_SPEED`` (the --fast clock factor; a test keeps the two equal)."""
 
 
 @contextmanager
@@ -217,7 +217,7 @@ def sim_record(
     """Record a simulated session: the simulated car of CONFIG with every device on pseudo-terminals, a
     virtual CAN bus and the simulated DAQ, through the real recording path, until the drive ends."""
     from rig.core.config import load_session, parse_override
-    from rig.sim.world import FAST_SPEED, record_simulated
+    from rig.sim.record import FAST_SPEED, record_simulated
 
     overrides = dict(parse_override(item) for item in (set_ or []))
     if drive is not None:

@@ -28,7 +28,7 @@ from rich.console import Console, Group
 from rich.live import Live
 from rich.text import Text
 
-from rig.record.status import DeviceState, SessionStatus, StatusBoard, render_status, status_line
+from rig.record.status import DeviceState, RecordingStatus, StatusBoard, render_status, status_line
 from vsccore.clock import Clock
 
 __all__ = ["Dashboard", "Mark", "MarkInput", "alarm_lines"]
@@ -39,7 +39,7 @@ _ESC = "\x1b"
 _BACKSPACE = ("\x7f", "\b")
 
 
-def alarm_lines(status: SessionStatus) -> list[str]:
+def alarm_lines(status: RecordingStatus) -> list[str]:
     """One line per device in the DEGRADED state (its detail, and the latest event naming it)."""
     out = []
     for d in status.devices:

@@ -38,7 +38,7 @@ import pymap3d
 import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from drivers.relay.endpoints import Secret
 from rig.core.topics import foxglove_time
-from rig.record.status import DeviceState, SessionStatus
+from rig.record.status import DeviceState, RecordingStatus
 from vsccore.angles import sideslip_from_azimuths
 from vsccore.errors import ConfigError
 
@@ -272,7 +272,7 @@ class LiveFeed:
         rovers: Mapping[str, str],
         mount_offset_deg: float = 0.0,
         baseline_nominal_m: float = math.nan,
-        status: Callable[[], SessionStatus] | None = None,
+        status: Callable[[], RecordingStatus] | None = None,
         now_ns: Callable[[], int] = time.time_ns,
     ) -> None:
         self.sink = sink

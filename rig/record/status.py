@@ -1,7 +1,7 @@
 """Live status of a recording session, and its terminal view.
 
 The session keeps one :class:`StatusBoard` that device threads update (a few fields each, under a
-lock); the dashboard thread takes a :class:`SessionStatus` snapshot a few times a second and renders
+lock); the dashboard thread takes a :class:`RecordingStatus` snapshot a few times a second and renders
 it with rich. The snapshot is plain data, so tests check what the engineer would see without a
 terminal, and the same numbers go into ``/rig/events`` at the end of the session.
 """
@@ -21,7 +21,7 @@ from rich.text import Text
 __all__ = [
     "DeviceState",
     "DeviceStatus",
-    "SessionStatus",
+    "RecordingStatus",
     "StatusBoard",
     "VehicleStatus",
     "render_status",
@@ -77,7 +77,7 @@ class VehicleStatus:
 
 
 @dataclass(frozen=True, slots=True)
-class SessionStatus:
+class RecordingStatus:
     """Snapshot of the whole session."""
 
     name: str
@@ -166,7 +166,7 @@ class StatusBoard:
         with self._lock:
             self._free_disk_mb = mb
 
-    def snapshot(self, now_ns: int) -> SessionStatus:
+    def snapshot(self, now_ns: int) -> RecordingStatus:
         with self._lock:
             devices = []
             for name, d in self._devices.items():
@@ -177,7 +177,7 @@ class StatusBoard:
                     rate = (len(recent) - 1) / ((recent[-1] - recent[0]) * 1e-9)
                 c = self._counters[name]
                 devices.append(replace(d, rate_hz=rate, messages=c.count, last_host_ns=c.last_host_ns))
-            return SessionStatus(
+            return RecordingStatus(
                 name=self._name,
                 elapsed_s=(now_ns - self._t0) * 1e-9,
                 devices=tuple(devices),
@@ -200,7 +200,7 @@ _STATE_STYLE = {
 }
 
 
-def render_status(status: SessionStatus, now_ns: int) -> Group:
+def render_status(status: RecordingStatus, now_ns: int) -> Group:
     """The dashboard for one snapshot: a device table, the file line and the last events."""
     table = Table(title=f"vsc-rig — {status.name} — {status.elapsed_s:7.1f} s", expand=True)
     for col in ("device", "kind", "state", "rate", "messages", "age", "errors", "detail"):
@@ -244,7 +244,7 @@ def _vehicle_line(v: VehicleStatus) -> Text:
     return line
 
 
-def status_line(status: SessionStatus) -> str:
+def status_line(status: RecordingStatus) -> str:
     """One plain line for logs and non-terminal output (no colours, no cursor movement)."""
     devs = " ".join(f"{d.name}={d.state.value}:{d.rate_hz:.0f}Hz" + (f"({d.detail})" if d.detail else "")
                     for d in status.devices)

@@ -36,13 +36,12 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import can
-import numpy as np
 
 import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from drivers.analog import AnalogChannelSpec
@@ -60,9 +59,7 @@ from drivers.daq import (
 from drivers.optical import OpticalSensorSpec
 from rig.core.config import AntennaConfig, CanConfig, DaqConfig, ReceiverConfig, SessionConfig, SimulationConfig
 from rig.core.topics import EventKind, Severity
-from rig.data import Session
-from rig.record.recording import Recording, RecordingSummary
-from rig.store import RecorderOptions
+from rig.record.recording import Recording
 from sim_devices.daq import SimDaqBackend, SimDaqLink, SimOpticalSensor, SyncPulseOutput, sim_daq_sources
 from sim_devices.gnss import (
     DEFAULT_SOLUTION_NOISE,
@@ -98,19 +95,11 @@ if TYPE_CHECKING:
     from rig.store import Source
 
 __all__ = [
-    "BESTPOSB_BYTES",
-    "FAST_SPEED",
     "SIM_PREFIX",
-    "Action",
     "DaqTiming",
     "SimCanLink",
-    "SimRecording",
     "SimWorld",
-    "StreamTiming",
     "drive_from_name",
-    "gnss_min_latency_s",
-    "record_simulated",
-    "timing_vs_truth",
     "true_antenna_lever_arms",
 ]
 
@@ -1068,177 +1057,5 @@ def _sim_target(url: str) -> tuple[str, str | None]:
     return name, port or None
 
 
-# ---------------------------------------------------------------------------------------------
-# Recording a simulated session
-# ---------------------------------------------------------------------------------------------
-
-FAST_SPEED = 3.0
-"""Clock speed of ``--fast`` simulated sessions (every device keeps up at this rate on a laptop)."""
-
-Action = tuple[float, Callable[["SimWorld", "Recording"], None]]
-"""Something to do to the world or the session at a truth time (s), e.g. unplug a rover."""
 
 
-@dataclass(frozen=True, slots=True)
-class SimRecording:
-    """A finished simulated recording."""
-
-    summary: RecordingSummary
-    world: SimWorld
-    """The (stopped) world: its truth, time base, sync schedule and DAQ timing."""
-    completed: bool
-    """The drive ran to its end (False: stopped early)."""
-    wall_s: float
-    governor: GovernorStats | None = None
-    """How much the governed clock slowed (None: not governed)."""
-    governor_text: str = ""
-
-
-def record_simulated(
-    cfg: SessionConfig,
-    out_dir: Path | str,
-    *,
-    name: str | None = None,
-    drive: Drive | Scenario | None = None,
-    speed: float | None = None,
-    lead_s: float | None = None,
-    rtk: RtkParams | None = None,
-    stop: threading.Event | None = None,
-    tick: Callable[[Recording], None] | None = None,
-    actions: Sequence[Action] = (),
-    config_path: Path | str | None = None,
-    options: RecorderOptions | None = None,
-    on_started: Callable[[Recording], None] | None = None,
-    truth: GroundTruth | None = None,
-    device_process: bool = False,
-    governed: bool | None = None,
-) -> SimRecording:
-    """Run a :class:`SimWorld` and record it with a :class:`~rig.record.recording.Recording` until the
-    drive ends (or ``stop`` is set, or the recording fails); return what was recorded.
-
-    ``actions`` run at their truth times on this thread; ``tick`` every 0.25 s of real time (a
-    dashboard); ``on_started`` once the session records. ``device_process``, ``governed``: see
-    :class:`SimWorld`; the governed clock is released once the session has stopped.
-    """
-    t0 = time.monotonic()
-    stop = stop or threading.Event()
-    world = SimWorld(cfg, drive=drive, speed=speed, lead_s=lead_s, rtk=rtk, truth=truth,
-                     device_process=device_process, governed=governed)
-    switch = sys.getswitchinterval()
-    if world.governed:
-        # readers that wake for their data must get the interpreter soon (see _device_host_main)
-        sys.setswitchinterval(min(switch, GOVERNED_SWITCH_INTERVAL_S))
-    world.start()
-    completed = False
-    try:
-        assert world.clock is not None
-        clock = world.clock
-        session = Recording(
-            cfg, out_dir=out_dir, name=name, clock=world.clock, ports=world, daq_factory=world.daq_session,
-            can_factory=world.can_bus, plugins=[world], config_path=config_path, options=options,
-        )
-        session.start()
-        try:
-            if world.truth_time_s() > -1.0:
-                log.warning("sim world: the recording started only %.1f s before the drive (lead %.1f s at %g×); "
-                            "give a longer lead", -world.truth_time_s(), world.lead_s, world.speed)
-            if on_started is not None:
-                on_started(session)
-            pending = sorted(actions, key=lambda a: a[0])
-            while not (stop.is_set() or session.failed.is_set()):
-                world.report_governor_releases()
-                world.report_device_losses()
-                now = clock.now_ns()
-                while pending and now >= world.timebase.truth_start_ns + round(pending[0][0] * NS_PER_S):
-                    pending.pop(0)[1](world, session)
-                if now >= world.end_ns:
-                    completed = True
-                    break
-                if tick is not None:
-                    tick(session)
-                due = world.end_ns
-                if pending:
-                    due = min(due, world.timebase.truth_start_ns + round(pending[0][0] * NS_PER_S))
-                stop.wait(min(0.25, max(0.0, (due - now) / world.speed / NS_PER_S)))
-        finally:
-            # the clock stays governed while the session stops (a reader that closes its end owes
-            # nothing): released first, it ran freely at full speed while the readers closed, and the
-            # session's stop took seconds of simulated time under load
-            try:
-                summary = session.stop()
-            finally:
-                if clock.governor is not None:
-                    clock.governor.release()
-    finally:
-        governor_text = world.governor_summary() if world.clock is not None else ""
-        sys.setswitchinterval(switch)
-        world.stop()
-    return SimRecording(summary, world, completed, time.monotonic() - t0, world.governor_stats(), governor_text)
-
-
-# ---------------------------------------------------------------------------------------------
-# Scoring a simulated recording against the truth
-# ---------------------------------------------------------------------------------------------
-
-BESTPOSB_BYTES = 28 + 72 + 4
-"""Binary BESTPOS on the wire: header, body, CRC."""
-
-
-def gnss_min_latency_s(cfg: SessionConfig) -> float:
-    """The constant part of the reference rover's BESTPOS latency in a simulated session: the receivers'
-    output latency plus the log's serial transmission time at the port's baud rate (the lower
-    envelope of the time base cannot see a constant; pass this to :func:`rig.data.load_session`)."""
-    if cfg.simulation is None:
-        raise ConfigError("simulation: not a simulated session")
-    rovers = sorted((r for r in cfg.receivers if r.role == "rover"), key=lambda r: r.name)
-    baud = rovers[0].baud if rovers else 115200
-    return cfg.simulation.gnss.output_latency_s + BESTPOSB_BYTES * 10 / baud
-
-
-@dataclass(frozen=True, slots=True)
-class StreamTiming:
-    """Time-stamp error of one stream of a simulated recording against the simulator's true times."""
-
-    stream: str
-    n: int
-    mean_ns: float
-    rms_ns: float
-    max_abs_ns: float
-
-
-def _timing(stream: str, err: Any) -> StreamTiming:
-    e = np.asarray(err, dtype=np.float64)
-    if e.size == 0:
-        return StreamTiming(stream, 0, math.nan, math.nan, math.nan)
-    return StreamTiming(stream, int(e.size), float(e.mean()), float(np.sqrt(np.mean(e * e))), float(np.abs(e).max()))
-
-
-def timing_vs_truth(ds: Session, cfg: SessionConfig) -> list[StreamTiming]:
-    """How far each stream's times on the common base are from the truth, in a file recorded from a
-    :class:`SimWorld` (whose host clock is true UTC):
-
-    - CAN: the simulated ECU stamps each frame with its true transmit time (the interface clock);
-    - DAQ: sample times from the sync pulse against the simulated sample clock (the ``sim`` event);
-    - GNSS: MARKTIME against the sync schedule's true edge times is exact by construction, so the
-      GNSS streams are scored through the DAQ and CAN (their alignment rests on GNSS time).
-    """
-    out: list[StreamTiming] = []
-    for bus in ds.can_buses():
-        fr = ds.can_frames(bus)
-        dev = fr.records["device_ts_ns"].astype(np.int64)
-        ok = dev != T.NO_TIME_NS
-        out.append(_timing(f"can:{bus} ({fr.time_source})", fr.time_ns[ok] - dev[ok]))
-    daq = cfg.daq
-    marks = [r.name for r in cfg.receivers if {_base(lr.name) for lr in r.logs} & {"MARKTIME", "MARKPOS"}]
-    if daq is not None and daq.sync_channel is not None and marks and ds.leap_seconds is not None:
-        d = ds.daq(daq.device, sync_channel=daq.sync_channel, receiver=marks[0])
-        sim = [e for _t, e in ds.events if e.source == "sim" and "sample0_gps_ns" in e.details]
-        if len(sim) == 1:
-            g0 = gps_ns_to_unix_ns(int(sim[0].details["sample0_gps_ns"]), ds.leap_seconds)
-            true = g0 + d.sample_index.astype(np.float64) * (1e9 / float(sim[0].details["true_rate_hz"]))
-            out.append(_timing(f"daq:{daq.device} ({d.time_source})", d.time_ns - true))
-    return out
-
-
-def _base(name: str) -> str:
-    return name[:-1] if name[-1:] in ("A", "B") else name

@@ -136,7 +136,8 @@ def _record(
 ) -> tuple[str, tuple[Path, ...]]:
     """Record the simulated session; summarise what the file holds and how well its streams are timed."""
     from rig.data import load_session as load_recording
-    from rig.sim.world import record_simulated, timing_vs_truth
+    from rig.sim.record import record_simulated
+    from rig.sim.truth import timing_vs_truth
 
     sim = cfg.simulation
     assert sim is not None

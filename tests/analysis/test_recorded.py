@@ -1,7 +1,7 @@
 """Roll-corrected GNSS reference on a recorded simulated session, scored against the session's own truth.
 
 A short drive (straight, ISO 3888-1 double lane change at 50 km/h) is recorded through the real
-recording path (rig.sim.world.record_simulated: base and two rovers with the correction relay, the
+recording path (rig.sim.record.record_simulated: base and two rovers with the correction relay, the
 VSC ECU on a virtual CAN bus) with the shipped simulated car, whose roof antennas sit 1 m above the
 CG; the reference is computed as ``rig validate`` does and scored on the double lane change.
 """
@@ -19,7 +19,7 @@ from rig.analysis.reference import AntennaGeometry, ImuSpec, ReferenceSideslip, 
 from rig.core.config import load_session
 from rig.data.inputs import SessionInputs, load_inputs
 from rig.evaluate.validate import _imu, roll_model, steering_model, validate_session
-from rig.sim.world import record_simulated
+from rig.sim.record import record_simulated
 from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, make_scenario, simulate

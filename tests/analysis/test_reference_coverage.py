@@ -33,7 +33,7 @@ from rig.analysis.rollover import RollModel
 from rig.core.config import load_session
 from rig.data.inputs import load_inputs
 from rig.evaluate.validate import validate_session
-from rig.sim.world import record_simulated
+from rig.sim.record import record_simulated
 from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, make_scenario, simulate

@@ -1,6 +1,6 @@
 """Simulated sessions for the calibration commands, recorded through the real recording path.
 
-:func:`record_sim` runs :func:`rig.sim.world.record_simulated` (simulated receivers on
+:func:`record_sim` runs :func:`rig.sim.record.record_simulated` (simulated receivers on
 pseudo-terminals, the VSC ECU on a virtual CAN bus, the simulated DAQ, the real recorder) with the
 example configuration ``rig/examples/sim.toml`` and ``--set``-style overrides, on a short drive.
 """
@@ -20,7 +20,8 @@ import rig.core.topics as T  # noqa: N812 - short alias
 from drivers.can.dbc import load_dbc
 from drivers.can.roles import RoleMap, encode_role_frame
 from rig.core.config import SessionConfig, load_session
-from rig.sim.world import record_simulated, true_antenna_lever_arms
+from rig.sim.record import record_simulated
+from rig.sim.world import true_antenna_lever_arms
 from rig.store import Attachment, Recorder, RecorderOptions, session_metadata
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle import Drive, GroundTruth, Scenario, VehicleParams, make_scenario, simulate

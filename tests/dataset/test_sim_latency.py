@@ -18,7 +18,7 @@ import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from rig.core.config import SessionConfig
 from rig.core.config import load_session as load_config
 from rig.data import Session, load_session
-from rig.sim.world import record_simulated
+from rig.sim.record import record_simulated
 from rig.store import scan_part
 from rig.workflows.demo import demo_config_path
 from sim_devices.vehicle.scenarios import make_scenario

@@ -9,7 +9,7 @@ from pathlib import Path
 def record_validating_drive(out: Path) -> Path:
     """Record the drive under ``out``; the session's path (``out/run``)."""
     from rig.core.config import load_session as load_config
-    from rig.sim.world import record_simulated
+    from rig.sim.record import record_simulated
     from rig.workflows.demo import demo_config_path
     from sim_devices.vehicle import Drive, VehicleParams, make_scenario, simulate
     from tests.validate_cli.conftest import FAST_RTK

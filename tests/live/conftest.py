@@ -11,7 +11,7 @@ import pytest
 
 from rig.live import LiveOptions, LiveView
 from rig.record.recording import Recording
-from rig.sim.world import SimRecording, record_simulated
+from rig.sim.record import SimRecording, record_simulated
 from tests.session.recording import FAST_RTK, config
 
 

@@ -81,7 +81,7 @@ def test_convbin_on_rig_export_of_a_recorded_session(tmp_path: Path) -> None:
     from drivers.novatel import FrameReader
     from rig.core.config import load_session as load_config
     from rig.export.raw_gnss import export_raw_gnss
-    from rig.sim.world import record_simulated
+    from rig.sim.record import record_simulated
     from rig.workflows.demo import demo_config_path
     from sim_devices.vehicle.scenarios import make_scenario
 

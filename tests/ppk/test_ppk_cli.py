@@ -39,7 +39,7 @@ NO_GLO_B = ("rover_b: no GLOEPHEMERISB in the session; GLONASS not used for rove
 @pytest.fixture(scope="module")
 def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from rig.core.config import load_session as load_config
-    from rig.sim.world import record_simulated
+    from rig.sim.record import record_simulated
     from rig.workflows.demo import demo_config_path
     from sim_devices.vehicle.scenarios import make_scenario
 

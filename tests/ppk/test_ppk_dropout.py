@@ -31,7 +31,8 @@ from rig.core.config import load_session
 from rig.data.inputs import SessionInputs, load_inputs
 from rig.data.sidefiles import PPK_COLUMNS, ppk_file_path, read_ppk_file
 from rig.evaluate.validate import validate_session, validation_lines
-from rig.sim.world import SimWorld, record_simulated
+from rig.sim.record import record_simulated
+from rig.sim.world import SimWorld
 from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, make_scenario, simulate

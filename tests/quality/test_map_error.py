@@ -23,7 +23,7 @@ from rig.core.timebase import ClockEstimator, causality_bound_ns
 from rig.core.topics import EventKind
 from rig.data import Session, load_session
 from rig.data.verdicts import daq_causality_ns, session_verdicts
-from rig.sim.world import record_simulated
+from rig.sim.record import record_simulated
 from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle.scenarios import make_scenario

@@ -11,8 +11,8 @@ from pathlib import Path
 from rig.core import topics as T  # noqa: N812 - topics used as a namespace
 from rig.data import load_session
 from rig.record.recording import Recording
-from rig.record.status import DeviceState, SessionStatus
-from rig.sim.world import record_simulated
+from rig.record.status import DeviceState, RecordingStatus
+from rig.sim.record import record_simulated
 from tests.relay.test_integrity import BareStatusCaster
 from tests.session.recording import FAST_RTK, config
 
@@ -21,7 +21,7 @@ PASSWORD = "wr0ng-pass"
 
 def test_a_refused_correction_login_in_rig_record_is_an_event_and_a_dashboard_alarm(tmp_path: Path) -> None:
     caster = BareStatusCaster(b"HTTP/1.0 401 Unauthorized\r\n")
-    snapshots: list[SessionStatus] = []
+    snapshots: list[RecordingStatus] = []
     lock = threading.Lock()
 
     def tick(s: Recording) -> None:

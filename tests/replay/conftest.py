@@ -12,7 +12,7 @@ import pytest
 from rig.core.config import load_session as load_config
 from rig.data import Session, load_session
 from rig.replay.player import realtime_priority
-from rig.sim.world import record_simulated
+from rig.sim.record import record_simulated
 from rig.workflows.demo import demo_config_path
 from sim_devices.vehicle.scenarios import make_scenario
 from tests.session.recording import FAST_RTK

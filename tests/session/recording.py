@@ -19,7 +19,7 @@ from scipy.signal import lfilter
 from rig.core.config import SessionConfig, load_session
 from rig.data import Session, align
 from rig.data import load_session as load_recording
-from rig.sim.world import SimRecording, record_simulated
+from rig.sim.record import SimRecording, record_simulated
 from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle.truth import GroundTruth

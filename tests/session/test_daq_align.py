@@ -18,7 +18,8 @@ import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from rig.data import load_session
 from rig.data.inputs import load_inputs
 from rig.record.recording import Recording
-from rig.sim.world import SimRecording, SimWorld, record_simulated
+from rig.sim.record import SimRecording, record_simulated
+from rig.sim.world import SimWorld
 from tests.session.recording import FAST_RTK, config
 from vsccore.gpstime import gps_ns_to_unix_ns
 

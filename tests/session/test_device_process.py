@@ -17,7 +17,7 @@ import pytest
 
 import rig.core.topics as T  # noqa: N812
 from rig.data import load_session as load_recording
-from rig.sim.world import record_simulated
+from rig.sim.record import record_simulated
 from rig.workflows.demo import demo_config_path
 from tests.session.recording import FAST_RTK, config, gnss_min_latency_s
 from vsccore.errors import SimulationError

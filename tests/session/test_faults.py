@@ -11,7 +11,8 @@ import numpy as np
 import rig.core.topics as T  # noqa: N812 - topics used as a namespace
 from rig.data import load_session
 from rig.record.recording import Recording
-from rig.sim.world import SimWorld, record_simulated
+from rig.sim.record import record_simulated
+from rig.sim.world import SimWorld
 from tests.session.recording import FAST_RTK, config
 
 MS = 1_000_000

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from rig.core.quality import backward_steps
 from rig.data import load_session as load_recording
-from rig.sim.world import record_simulated
+from rig.sim.record import record_simulated
 from tests.session.recording import FAST_RTK, config
 
 END_BOUND_S = 0.2

@@ -16,7 +16,8 @@ import pytest
 
 from rig.core.config import load_session
 from rig.record.recording import Recording
-from rig.sim.world import SimRecording, SimWorld, record_simulated
+from rig.sim.record import SimRecording, record_simulated
+from rig.sim.world import SimWorld
 from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle import Drive, GroundTruth, VehicleParams, make_scenario, simulate
