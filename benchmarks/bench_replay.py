@@ -59,7 +59,9 @@ import numpy as np
 
 from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusLink, CanFrame, open_bus
 from rig.data import load_session
-from rig.replay.player import Replayer, ReplayPlan, ReplayStats, build_plan, parse_bus_spec, realtime_priority
+from rig.replay.plan import ReplayPlan, build_plan
+from rig.replay.player import Replayer, ReplayStats, parse_bus_spec
+from rig.replay.scheduling import realtime_priority
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from vsccore.clock import ScaledClock, SystemClock
 

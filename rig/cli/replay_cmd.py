@@ -53,7 +53,9 @@ def replay(
     signal each and reseal the checksum. Prints the plan, then the send-lateness figures at the end."""
     from drivers.can.dbc import load_dbc
     from drivers.can.roles import RoleMap
-    from rig.replay.player import ReplayPlan, ReplayStats, describe_plan, parse_bus_spec, parse_fault, replay_session
+    from rig.replay.faults import parse_fault
+    from rig.replay.plan import ReplayPlan, describe_plan
+    from rig.replay.player import ReplayStats, parse_bus_spec, replay_session
 
     if not speed > 0 or speed != speed or speed == float("inf"):
         raise ConfigError(f"rig replay: --speed must be a finite number > 0, got {speed}")

@@ -11,7 +11,7 @@ import pytest
 
 from rig.core.config import load_session as load_config
 from rig.data import Session, load_session
-from rig.replay.player import realtime_priority
+from rig.replay.scheduling import realtime_priority
 from rig.sim.record import record_simulated
 from rig.workflows.demo import demo_config_path
 from sim_devices.vehicle.scenarios import make_scenario

@@ -22,7 +22,7 @@ from typing import Any
 import rig.core.topics as T  # noqa: N812 - short alias
 from drivers.can.bus import BusEvent, BusOpened, CanBusConfig, CanBusLink, CanFrame, CanFrameFlag
 from rig.data import Session, load_session
-from rig.replay.player import realtime_priority
+from rig.replay.scheduling import realtime_priority
 from rig.store import Attachment, Recorder, RecorderOptions, session_metadata
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from vsccore.clock import SystemClock

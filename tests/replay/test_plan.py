@@ -11,7 +11,9 @@ import pytest
 from drivers.can.checks import FrameFlag, VwMqbCrc8
 from drivers.can.vector_decode import FrameBatch, VectorRoleDecoder
 from rig.data import Session
-from rig.replay.player import Fault, FaultKind, ReplayPlan, build_plan, parse_bus_spec, parse_fault, parse_id
+from rig.replay.faults import Fault, FaultKind, parse_fault, parse_id
+from rig.replay.plan import ReplayPlan, build_plan
+from rig.replay.player import parse_bus_spec
 from vsccore.errors import AnalysisError, ConfigError
 
 CRC = VwMqbCrc8()

@@ -30,7 +30,9 @@ from drivers.can.bus import CanBusConfig
 from drivers.can.checks import FrameFlag
 from drivers.can.vector_decode import VectorRoleDecoder
 from rig.data import Session
-from rig.replay.player import ReplayPlan, ReplayStats, build_plan, parse_bus_spec, parse_fault, replay_session
+from rig.replay.faults import parse_fault
+from rig.replay.plan import ReplayPlan, build_plan
+from rig.replay.player import ReplayStats, parse_bus_spec, replay_session
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from tests.replay.conftest import fifo_allowed
 from tests.replay.receiver import ReceivingRecorder, ReceivingSide

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 import rig.core.topics as T  # noqa: N812 - short alias
-from rig.replay.player import Replayer, ReplayPlan
+from rig.replay.plan import ReplayPlan
+from rig.replay.player import Replayer
 from tests.replay.conftest import fifo_allowed
 from vsccore.errors import ConfigError
 
@@ -327,7 +328,7 @@ def test_the_player_thread_sleeps_with_a_fine_timer_slack_and_restores_it() -> N
 
 def _slice_ns() -> int | None:
     """The calling thread's scheduler time slice (``sched_getattr``), None where it cannot be read."""
-    from rig.replay.player import _SYS_SCHED_ATTR, _SchedAttr
+    from rig.replay.scheduling import _SYS_SCHED_ATTR, _SchedAttr
 
     calls = _SYS_SCHED_ATTR.get(os.uname().machine) if sys.platform == "linux" else None
     if calls is None:
