@@ -28,14 +28,14 @@ from typer.testing import CliRunner
 
 from drivers.novatel.commands import LogRequest, LogTrigger
 from drivers.novatel.receiver import ReceiverSettings
-from rig.cli.gnss_cmd import (
+from rig.cli.main import app
+from rig.live.gnss_monitor import (
     ReceiverMonitor,
     monitor_commands,
     parse_log_option,
     render_monitor,
     run_monitor,
 )
-from rig.cli.main import app
 from sim_devices.gnss import SimRover, SimTimeBase
 from sim_devices.vehicle import GroundTruth, make_scenario, simulate
 from tests.sigint import ctrl_c_reaches_children
