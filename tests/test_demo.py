@@ -91,10 +91,11 @@ def test_steering_ratio_from_the_demo_circles_matches_the_simulated_gear(demo_ou
 
 
 # The demo's topics, schemas and message counts as recorded before the layout of rig/ changed (issue 30,
-# recorded on the old code at d8d4d8d). Two runs of the same code differed by at most 1 message on the
-# decoded topics and 0.3 % on the raw ones (reads and blocks are cut as the host schedules them; the DAQ blocks
-# of a later run 0.6 % fewer for the same samples), 5 events and
-# 5 time-base records (both written on the host's housekeeping ticks).
+# recorded on the old code at d8d4d8d). Two idle runs of the same code differed by at most 1 message on the
+# decoded topics and 0.3 % on the raw ones (reads and blocks are cut as the host schedules them), 5 events
+# and 5 time-base records (both written on the host's housekeeping ticks). A run on a loaded host began
+# logging 1.45 s of simulated time later (the receivers' configuration took longer: 29 of 3255 BESTPOS,
+# 0.9 %) and cut its DAQ blocks 0.6 % fewer, so the counts are held to 3 %.
 _GOLDEN = Path(__file__).with_name("golden") / "demo_topics.json"
 _LOOSE = ("/raw", "/samples", "/frames", "/rig/events", "/rig/timebase", "/relay/stats")
 
@@ -127,5 +128,5 @@ def test_topics_schemas_and_counts_are_those_of_the_golden_recording(demo_out: P
         g = got[topic]
         assert {k: v for k, v in g.items() if k != "count"} == {k: v for k, v in w.items() if k != "count"}, topic
         loose = any(topic.endswith(s) or topic == s for s in _LOOSE)
-        tol = max(10, 0.2 * w["count"]) if loose else max(3, 0.002 * w["count"])
+        tol = max(10, 0.2 * w["count"]) if loose else max(3, 0.03 * w["count"])
         assert abs(int(g["count"]) - w["count"]) <= tol, (topic, g["count"], w["count"])  # type: ignore[call-overload]

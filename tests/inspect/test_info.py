@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 
 import rig.core.topics as T  # noqa: N812 - short alias
 import rig.data.info as inspect_mod
+import rig.store.parts as parts_mod
 from rig.cli.main import app, main
 from rig.data.info import INFO_JSON_KEYS, ReadVia, format_info, info_to_json, read_session_info
 from rig.store import ProblemKind, Recorder, RecorderOptions, find_parts, recover, scan_part
@@ -118,9 +119,9 @@ def test_fast_path_agrees_with_full_scan(synth: Synth, monkeypatch: pytest.Monke
     fast = info_to_json(read_session_info(synth.base))
 
     def no_index(path: Path) -> None:
-        raise inspect_mod._NoIndexError("forced scan")
+        raise parts_mod.NoIndexError("forced scan")
 
-    monkeypatch.setattr(inspect_mod, "_read_indexed", no_index)
+    monkeypatch.setattr(parts_mod, "_read_indexed", no_index)
     slow = info_to_json(read_session_info(synth.base))
     assert {p["read_via"] for p in slow["parts"]} == {"scan"}
     # only the scan checks chunk CRCs; --verify asks for it

@@ -21,7 +21,8 @@ from mcap.reader import make_reader
 from typer.testing import CliRunner
 
 import rig.core.topics as T  # noqa: N812 - short alias used throughout the tests
-import rig.data.info as inspect_mod
+import rig.store.parts as parts_mod
+import rig.store.records as records_mod
 from rig.cli.main import main
 from rig.core.quality import Gap, StreamQuality, judge, verdict_lines
 from rig.data.info import VerdictSource, format_info, info_to_json, read_session_info
@@ -34,7 +35,7 @@ PAYLOAD = {T.TOPIC_EVENTS, T.TOPIC_TIMEBASE}
 
 def _summary(part: Path) -> Any:
     with open(part, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-        return inspect_mod._read_summary(mm)
+        return records_mod.read_summary(mm)
 
 
 def test_summary_parser_equals_mcaps_reader(synth: Synth) -> None:
@@ -64,7 +65,7 @@ def test_default_info_decompresses_only_event_and_timebase_chunks_and_never_load
     assert 0 < len(expected) < total / 2  # most chunks hold raw bytes and decoded logs only
 
     seen: list[str] = []
-    real = inspect_mod.decompress_chunk
+    real = records_mod.decompress_chunk
 
     def counting(compression: str, raw: bytes, usize: int, where: str) -> bytes:
         seen.append(where)
@@ -73,8 +74,8 @@ def test_default_info_decompresses_only_event_and_timebase_chunks_and_never_load
     def forbidden(*_a: Any, **_k: Any) -> Any:
         raise AssertionError("rig info read every message (scan or dataset) on its default path")
 
-    monkeypatch.setattr(inspect_mod, "decompress_chunk", counting)
-    monkeypatch.setattr(inspect_mod, "scan_part", forbidden)
+    monkeypatch.setattr(records_mod, "decompress_chunk", counting)
+    monkeypatch.setattr(parts_mod, "scan_part", forbidden)
     monkeypatch.setattr("rig.data.load_session", forbidden)
     main(["info", str(synth.base)])  # returns: exit status 0
     assert "time-base verdicts" in capsys.readouterr().out

@@ -22,7 +22,8 @@ from rig.cli.main import app
 from rig.data import load_session
 from rig.data.info import read_session_info
 from rig.store import ProblemKind, Recorder, finalize_in_place, recover, scan_part
-from rig.store.reader import _MSG, _REC, ChunkInfo, DamageKind, PartScan, decompress_chunk
+from rig.store.reader import ChunkInfo, DamageKind, PartScan
+from rig.store.records import MSG, REC, decompress_chunk
 from tests.recorder.helpers import T0, limited_opener, options, read_with_mcap
 from vsccore.errors import DiskFullError
 
@@ -68,7 +69,7 @@ def chunk_records(data: bytes, c: ChunkInfo) -> list[tuple[int, bytes]]:
     out = []
     q = 0
     while q < len(records):
-        op, ln = _REC.unpack_from(records, q)
+        op, ln = REC.unpack_from(records, q)
         out.append((op, records[q + 9 : q + 9 + ln]))
         q += 9 + ln
     return out
@@ -81,7 +82,7 @@ def chunk_messages(data: bytes, scan: PartScan) -> list[set[tuple[str, int]]]:
         msgs = set()
         for op, body in chunk_records(data, c):
             if op == 0x05:
-                cid, seq, _lt, _pt = _MSG.unpack_from(body, 0)
+                cid, seq, _lt, _pt = MSG.unpack_from(body, 0)
                 msgs.add((scan.channels[cid].topic, seq))
         out.append(msgs)
     return out
