@@ -22,11 +22,25 @@ stays a number, as the per-message ``UNKNOWN_<n>`` member does), strings numpy `
 PRN lists an object column of tuples. A derived time that has no int64 value (negative or
 far-future week, non-finite seconds) is :data:`MISSING_INT`.
 
+The logs the stream decoders keep raw for post-processing are decoded too, to the values of their
+:mod:`drivers.novatel.rawobs` decoders: GPSEPHEM and GLOEPHEMERIS (body columns named as the
+dataclass fields), and RANGECMP, whose body holds ``num_obs`` and whose observations are in
+:attr:`LogColumns.records` (one row per record, the :class:`~drivers.novatel.rawobs.RangeCmpRecord`
+fields; log i holds ``record_start[i]:record_start[i + 1]``)::
+
+    rc = batch.log("RANGECMP")
+    rc.records["pseudorange_m"], rc.records["adr_cycles"], rc.record_rows()   # per observation
+
 How it stays fast: frame starts, ``*``, separators and line breaks are located with numpy over
 the whole buffer and every candidate is classified in bulk as the framer would; only the CRC is a
-per-frame call (zlib, in C). Binary logs of one message ID are copied out as one array and viewed
-through a structured dtype built from the layout tables of :mod:`drivers.novatel.layouts` (header
-and body in one view). ASCII logs of one name are split at the separator positions (no joined
+per-frame call (zlib, in C). Binary frames are located first: a ``#`` or ``%`` inside a good binary
+frame is never looked at by the framer once that frame is accepted, so the text scans run only for
+the candidates outside them (in a binary stream, none), and again over all of them in the rare case
+that such a frame was not accepted. Binary logs of one message ID are copied out as one array and
+viewed through a structured dtype built from the layout tables of :mod:`drivers.novatel.layouts`
+(header and body in one view); RANGECMP records are copied out in one gather and their bit fields
+cut out of 32-bit words with shifts and masks, the ADR roll-over resolved with the per-record
+decoder's own double-precision operations. ASCII logs of one name are split at the separator positions (no joined
 copy); each token is read right-aligned as 64-bit words, and numbers are parsed with SWAR
 arithmetic, eight digits per word operation (a decimal of at most 15 digits is ``mantissa /
 10**k``, one correctly rounded IEEE division, so it equals ``float(token)``); hex, enum and
@@ -35,9 +49,9 @@ own conversion. A run of columns that is the same in every row of the batch (por
 week, datum, … in a typical capture) is recognised by comparing its byte span, and parsed once.
 No Python code runs per field per log. A row that does not fit these shapes (wrong field count, a
 quoted comma, an exponent or 16+ digits, an enum given as a number, a non-standard binary header
-length, PSRDOP's variable PRN list) is decoded by the per-message decoder instead, so the result
-is always that decoder's; a frame that decoder cannot decode either is counted as
-:attr:`RejectReason.MALFORMED`.
+length, PSRDOP's variable PRN list, a RANGECMP whose length is not its count of records, ASCII
+RANGECMP, the ephemerides) is decoded by the per-message decoder instead, so the result is always
+that decoder's; a frame that decoder cannot decode either is counted as :attr:`RejectReason.MALFORMED`.
 
 Known differences from the per-message path: numpy ``str`` columns drop trailing NUL characters,
 and an ASCII integer too large for int64 (which no wire field can carry) makes its log malformed.
@@ -54,7 +68,6 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from numpy.lib.stride_tricks import sliding_window_view
 
 from drivers.novatel.ascii import decode_ascii_text
 from drivers.novatel.binary import LONG_HEADER, LONG_HEADER_LEN, decode_verified
@@ -62,6 +75,21 @@ from drivers.novatel.enums import TimeStatus, _OpenIntEnum, port_name_from_byte
 from drivers.novatel.framer import DEFAULT_MAX_FRAME_LEN
 from drivers.novatel.layouts import CODECS_BY_ID, CODECS_BY_NAME, BodyCodec, Kind
 from drivers.novatel.messages import Header, Log, RawBody, log_name_for_id
+from drivers.novatel.rawobs import (
+    ADR_MAX_VALUE,
+    PSR_STD_M,
+    RECORD_LEN,
+    GloEphemeris,
+    GpsEphem,
+    RangeCmp,
+    RangeCmpRecord,
+    decode_gloephemeris,
+    decode_gpsephem,
+    decode_rangecmp,
+    gloephemeris_codec,
+    gpsephem_codec,
+    signal_wavelength_m,
+)
 from vsccore.errors import ConfigError, DecodeError
 from vsccore.gpstime import NS_PER_S, NS_PER_WEEK, gps_to_ns
 
@@ -128,6 +156,12 @@ class LogColumns:
     """True for a binary frame, False for ASCII."""
     header: Mapping[str, Column]
     body: Mapping[str, Column]
+    records: Mapping[str, Column] = field(default_factory=dict)
+    """Columns of a log's repeated records (RANGECMP: one row per observation), all logs' records in
+    log order; empty for logs without a record list."""
+    record_start: IntArray | None = None
+    """Index into :attr:`records` of each log's first record, then the number of records (``len(self) + 1``
+    entries: log i holds records ``record_start[i]:record_start[i + 1]``); None for logs without records."""
 
     def __len__(self) -> int:
         return int(self.offset.shape[0])
@@ -137,14 +171,23 @@ class LogColumns:
         """Offset one past each frame's last byte."""
         return self.offset + self.length
 
+    def record_rows(self) -> IntArray:
+        """The row (log) of each record (empty for logs without records)."""
+        if self.record_start is None:
+            return np.zeros(0, dtype=np.int64)
+        return np.repeat(np.arange(len(self), dtype=np.int64), np.diff(self.record_start))
+
     def __getitem__(self, name: str) -> Column:
-        """A body column, else a header column."""
+        """A body column, else a header column, else a record column."""
         if name in self.body:
             return self.body[name]
         if name in self.header:
             return self.header[name]
+        if name in self.records:
+            return self.records[name]
         raise KeyError(
-            f"NovAtel {self.name} columns: no {name!r}; body: {list(self.body)}, header: {list(self.header)}"
+            f"NovAtel {self.name} columns: no {name!r}; body: {list(self.body)}, header: {list(self.header)}, "
+            f"records: {list(self.records)}"
         )
 
 
@@ -157,15 +200,16 @@ class ColumnBatch:
     rejected: Mapping[RejectReason, int]
     """Frame candidates that gave no log, by reason."""
     other: Mapping[str, int] = field(default_factory=dict)
-    """Valid frames not decoded into columns, by log name: logs without a typed layout, short-header
-    logs, binary responses and logs left out by the ``logs`` argument."""
+    """Valid frames not decoded into columns, by log name: logs the columns do not decode (no typed
+    layout, not RANGECMP, GPSEPHEM or GLOEPHEMERIS), short-header logs, binary responses and logs left
+    out by the ``logs`` argument."""
     bytes_in: int = 0
 
     def log(self, name: str) -> LogColumns:
         """Columns of ``name`` (empty columns of the right types when the buffer had none).
 
         Raises:
-            ConfigError: ``name`` is not a log with a typed layout.
+            ConfigError: ``name`` is not a log the columns decode.
         """
         found = self.logs.get(name)
         return found if found is not None else empty_columns(name)
@@ -180,11 +224,49 @@ class ColumnBatch:
 # ---------------------------------------------------------------------------------------------
 
 
-def _codec(name: str) -> BodyCodec:
-    codec = CODECS_BY_NAME.get(name)
-    if codec is None:
-        raise ConfigError(f"NovAtel columns: no typed layout for log {name!r}; known: {sorted(CODECS_BY_NAME)}")
-    return codec
+@dataclass(frozen=True, slots=True)
+class _Layout:
+    """The columns of one log: body columns, record columns (a log with a list of records), and for a
+    log the stream decoders keep raw, the :mod:`drivers.novatel.rawobs` decoder of its body."""
+
+    name: str
+    message_id: int
+    body: tuple[tuple[str, Kind], ...]
+    records: tuple[tuple[str, Kind], ...] = ()
+    prns: bool = False  # PSRDOP's variable PRN list, an object column of tuples
+    raw: Callable[[RawBody], Any] | None = None
+
+
+def _kinds(cls: type[Any]) -> tuple[tuple[str, Kind], ...]:
+    return tuple((f.name, Kind.FLOAT if f.type in ("float", float) else Kind.INT) for f in fields(cls))
+
+
+def _layouts() -> dict[str, _Layout]:
+    out = {
+        name: _Layout(name, c.cls.MESSAGE_ID, tuple((s.name, s.kind) for s in c.specs), prns=not c.fixed_layout)
+        for name, c in CODECS_BY_NAME.items()
+    }
+    raw = (
+        _Layout("RANGECMP", RangeCmp.MESSAGE_ID, (("num_obs", Kind.INT),), _kinds(RangeCmpRecord), raw=decode_rangecmp),
+        _Layout("GPSEPHEM", GpsEphem.MESSAGE_ID, tuple((s.name, s.kind) for s in gpsephem_codec().specs),
+                raw=decode_gpsephem),
+        _Layout("GLOEPHEMERIS", GloEphemeris.MESSAGE_ID, tuple((s.name, s.kind) for s in gloephemeris_codec().specs),
+                raw=decode_gloephemeris),
+    )
+    for lay in raw:
+        out.setdefault(lay.name, lay)  # a typed layout of the same log (none today) would take over
+    return out
+
+
+_LAYOUTS = _layouts()
+_LAYOUTS_BY_ID = {lay.message_id: lay for lay in _LAYOUTS.values()}
+
+
+def _layout(name: str) -> _Layout:
+    found = _LAYOUTS.get(name)
+    if found is None:
+        raise ConfigError(f"NovAtel columns: no column layout for log {name!r}; known: {sorted(_LAYOUTS)}")
+    return found
 
 
 def _empty(kind: Kind) -> Column:
@@ -195,10 +277,10 @@ def _empty(kind: Kind) -> Column:
     return np.zeros(0, dtype=np.int64)
 
 
-def _derived_names(codec: BodyCodec) -> tuple[str, ...]:
-    if codec.cls.MESSAGE_NAME in ("MARKTIME", "MARK2TIME"):
+def _derived_names(name: str) -> tuple[str, ...]:
+    if name in ("MARKTIME", "MARK2TIME"):
         return ("event_gps_ns",)
-    if codec.cls.MESSAGE_NAME == "TIME":
+    if name == "TIME":
         return ("leap_seconds",)
     return ()
 
@@ -207,17 +289,19 @@ def empty_columns(name: str) -> LogColumns:
     """Columns of log ``name`` with no rows (the dtypes a decoded batch has).
 
     Raises:
-        ConfigError: ``name`` is not a log with a typed layout.
+        ConfigError: ``name`` is not a log the columns decode.
     """
-    codec = _codec(name)
-    body: dict[str, Column] = {s.name: _empty(s.kind) for s in codec.specs}
-    if not codec.fixed_layout:
+    layout = _layout(name)
+    body: dict[str, Column] = {n: _empty(k) for n, k in layout.body}
+    if layout.prns:
         body["prns"] = np.zeros(0, dtype=object)
-    for d in _derived_names(codec):
+    for d in _derived_names(name):
         body[d] = np.zeros(0, dtype=np.int64)
     header = {h: _empty(_HEADER_KINDS[h]) for h in HEADER_COLUMNS}
     z = np.zeros(0, dtype=np.int64)
-    return LogColumns(name, codec.cls.MESSAGE_ID, z, z.copy(), np.zeros(0, dtype=bool), header, body)
+    records = {n: _empty(k) for n, k in layout.records}
+    return LogColumns(name, layout.message_id, z, z.copy(), np.zeros(0, dtype=bool), header, body, records,
+                      np.zeros(1, dtype=np.int64) if layout.records else None)
 
 
 _STRUCT_TO_NUMPY = {"B": "u1", "H": "<u2", "I": "<u4", "i": "<i4", "d": "<f8", "f": "<f4", "s": "S"}
@@ -389,16 +473,37 @@ def _first_comma(scan: _Scan, pos: IntArray, none: int) -> IntArray:
     return sep
 
 
-def _locate_ascii(scan: _Scan, sync: int, kind: int, max_len: int, out: _Candidates) -> None:
-    """Classify every ``#`` (or ``%``) as :meth:`Framer._parse_ascii` does at the end of a stream."""
+def _inside(pos: IntArray, starts: IntArray, ends: IntArray) -> BoolArray:
+    """Which positions lie inside one of the spans ``[start, end)`` that start before them (spans sorted by start)."""
+    if starts.size == 0:
+        return np.zeros(pos.shape, dtype=bool)
+    j = np.searchsorted(starts, pos, side="left") - 1  # the last span starting before each position
+    reach = np.maximum.accumulate(ends)  # overlapping spans: the furthest end so far
+    return (j >= 0) & (pos < reach.take(j, mode="clip"))
+
+
+def _locate_ascii(
+    scan: _Scan, sync: int, kind: int, max_len: int, out: _Candidates, skip: tuple[IntArray, IntArray] | None = None
+) -> IntArray:
+    """Classify every ``#`` (or ``%``) as :meth:`Framer._parse_ascii` does at the end of a stream.
+
+    Candidates inside the spans ``skip`` (starts, ends: the good binary frames) are left out and returned:
+    the framer never looks at them once those frames are accepted, which the caller checks. In a binary
+    stream they are all there are, and leaving them out spares the scans for '*', separators and line
+    breaks over the whole buffer.
+    """
     buf, arr = scan.buf, scan.arr
     n = arr.shape[0]
     syncs = scan.of(sync)
     pos = syncs[syncs + 1 < n]
     nxt = arr[pos + 1]
     pos = pos[(nxt >= 0x41) & (nxt <= 0x5A)]
+    skipped = np.zeros(0, dtype=np.int64)
+    if skip is not None and pos.size:
+        inside = _inside(pos, *skip)
+        skipped, pos = pos[inside], pos[~inside]
     if pos.size == 0:
-        return
+        return skipped
     big = n + max_len + 16
     limit = np.minimum(n, pos + max_len)
     star = _next_at(scan.of(0x2A), pos + 2, big)
@@ -456,17 +561,19 @@ def _locate_ascii(scan: _Scan, sync: int, kind: int, max_len: int, out: _Candida
         end[crc_fail] = star[crc_fail] + 9
     keep = status != _NOT_FRAME
     out.add(pos[keep], end[keep], status[keep], kind, star[keep])
+    return skipped
 
 
-def _locate_binary(scan: _Scan, max_len: int, out: _Candidates) -> None:
-    """Classify every ``AA 44 12`` / ``AA 44 13`` as :meth:`Framer._parse_binary` does at the end of a stream."""
+def _locate_binary(scan: _Scan, max_len: int, out: _Candidates) -> tuple[IntArray, IntArray]:
+    """Classify every ``AA 44 12`` / ``AA 44 13`` as :meth:`Framer._parse_binary` does at the end of a stream;
+    returns the spans (starts, ends) of the good frames, in order."""
     buf, arr = scan.buf, scan.arr
     n = arr.shape[0]
     pos = scan.of(0xAA)
     pos = pos[pos + 2 < n]
     pos = pos[(arr[pos + 1] == 0x44) & ((arr[pos + 2] == 0x12) | (arr[pos + 2] == 0x13))]
     if pos.size == 0:
-        return
+        return pos, pos
     long_ = arr[pos + 2] == 0x12
     total = np.zeros(pos.shape, dtype=np.int64)
     status = np.full(pos.shape, _NOT_FRAME, dtype=np.int64)
@@ -498,6 +605,8 @@ def _locate_binary(scan: _Scan, max_len: int, out: _Candidates) -> None:
     for k in (_K_BINARY, _K_SHORT_BINARY):
         m = kinds == k
         out.add(pos[keep][m], end[keep][m], status[keep][m], k)
+    good = status == _OK
+    return pos[good], end[good]
 
 
 def _walk(start: IntArray, end: IntArray, status: IntArray) -> tuple[BoolArray, dict[RejectReason, int]]:
@@ -933,14 +1042,14 @@ class _Part:
     binary: BoolArray
     header: dict[str, Column]
     body: dict[str, Column]
+    counts: IntArray | None = None  # records of each row, for a log with records
+    records: dict[str, Column] | None = None
 
 
-def _binary_part(codec: BodyCodec, arr: U8Array, start: IntArray, length: IntArray) -> _Part:
-    dtype = _FRAME_DTYPES[codec.cls.MESSAGE_ID]
-    # one row copy per frame (header and body), viewed through the frame's structured dtype
-    rec = np.ascontiguousarray(sliding_window_view(arr, dtype.itemsize)[start]).view(dtype).reshape(-1)
+def _binary_header(rec: npt.NDArray[Any]) -> dict[str, Column]:
+    """Header columns of long-header frames seen through a structured dtype with the ``h_`` fields."""
     ports, port_inv = np.unique(rec["h_port"], return_inverse=True)
-    header: dict[str, Column] = {
+    return {
         "port": np.asarray([port_name_from_byte(int(p)) for p in ports.tolist()], dtype=str)[port_inv.reshape(-1)],
         "sequence": rec["h_sequence"].astype(np.int64),
         "idle_time_pct": rec["h_idle"].astype(np.float64) * 0.5,
@@ -952,6 +1061,22 @@ def _binary_part(codec: BodyCodec, arr: U8Array, start: IntArray, length: IntArr
         "sw_version": rec["h_sw_version"].astype(np.int64),
         "source": (rec["h_message_type"] & 0x1F).astype(np.int64),
     }
+
+
+def _rows(arr: U8Array, size: int) -> npt.NDArray[np.void]:
+    """The buffer as ``size``-byte items starting at every byte (an overlapping view: indexing it with
+    positions copies those rows, one memory copy each)."""
+    return np.ndarray((max(arr.shape[0] - size + 1, 0),), dtype=f"V{size}", buffer=arr, strides=(1,))
+
+
+def _frames(arr: U8Array, start: IntArray, dtype: np.dtype[Any]) -> npt.NDArray[Any]:
+    """The first ``dtype.itemsize`` bytes of each frame, one row copy each, viewed through ``dtype``."""
+    return _rows(arr, dtype.itemsize)[start].view(dtype)
+
+
+def _binary_part(codec: BodyCodec, arr: U8Array, start: IntArray, length: IntArray) -> _Part:
+    rec = _frames(arr, start, _FRAME_DTYPES[codec.cls.MESSAGE_ID])  # header and body in one view
+    header = _binary_header(rec)
     body: dict[str, Column] = {}
     for spec in codec.specs:
         col = rec[f"b_{spec.name}"]
@@ -964,6 +1089,109 @@ def _binary_part(codec: BodyCodec, arr: U8Array, start: IntArray, length: IntArr
         else:
             body[spec.name] = col.astype(np.int64)
     return _Part(start.astype(np.int64), length.astype(np.int64), np.ones(start.shape, dtype=bool), header, body)
+
+
+def _rangecmp_head() -> np.dtype[Any]:
+    """A RANGECMP frame's long header and observation count."""
+    head = [*_struct_fields(LONG_HEADER.format, _LONG_HEADER_FIELDS, offset=3)[0], ("b_count", "<u4", LONG_HEADER_LEN)]
+    return np.dtype({"names": [f[0] for f in head], "formats": [f[1] for f in head], "offsets": [f[2] for f in head],
+                     "itemsize": LONG_HEADER_LEN + 4})
+
+
+_RANGECMP_HEAD = _rangecmp_head()
+
+
+def _rangecmp_part(arr: U8Array, start: IntArray, length: IntArray) -> _Part:
+    """Standard long-header binary RANGECMP frames whose length holds exactly their count of records."""
+    head = _frames(arr, start, _RANGECMP_HEAD)
+    counts = head["b_count"].astype(np.int64)
+    records = _rangecmp_records(arr, start + LONG_HEADER_LEN + 4, counts)
+    return _Part(start.astype(np.int64), length.astype(np.int64), np.ones(start.shape, dtype=bool),
+                 _binary_header(head), {"num_obs": counts}, counts, records)
+
+
+#: A RANGECMP record as little-endian 32-bit words (bit fields of the OEM7 reference): tracking status;
+#: Doppler (28 bits) and the pseudorange's low 4 bits; the pseudorange's high 32 bits; ADR; σ indices,
+#: PRN and lock time's low 16 bits; lock time's high 5 bits, C/N0 and GLONASS channel.
+_RECORD = np.dtype({
+    "names": ["status", "doppler_psr", "psr", "adr", "w4", "w5"],
+    "formats": ["<u4", "<u4", "<u4", "<i4", "<u4", "<u4"],
+    "offsets": [0, 4, 8, 12, 16, 20],
+    "itemsize": RECORD_LEN,
+})
+
+
+_RECORD_CHUNK = 65536  # records unpacked together (bounded temporaries for long captures)
+
+
+def _rangecmp_records(arr: U8Array, first: IntArray, counts: IntArray) -> dict[str, Column]:
+    """RANGECMP records as columns, the values of :func:`drivers.novatel.rawobs.decode_rangecmp`: ``counts[i]``
+    records of 24 bytes from ``arr[first[i]]``, all in order.
+
+    The records are copied out (one gather per chunk of records) and their bit fields cut out of 32-bit
+    words with shifts and masks; every value is computed exactly (integers, and sums and quotients that
+    a double holds exactly), and the ADR roll-over is resolved with the same double-precision operations
+    as the per-record decoder, the wavelength of each distinct (system, signal, GLONASS channel) taken
+    from :func:`drivers.novatel.rawobs.signal_wavelength_m`: bit for bit the per-record decoder's values.
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    total = int(counts.sum())
+    # record j (over all frames) starts at first[i] + 24 * (j - records before frame i)
+    pos = np.repeat(np.asarray(first, dtype=np.int64) - RECORD_LEN * (np.cumsum(counts) - counts), counts)
+    pos += RECORD_LEN * np.arange(total, dtype=np.int64)
+    if total and not 0 <= int(pos.min()) <= int(pos.max()) <= arr.shape[0] - RECORD_LEN:
+        raise ValueError(f"RANGECMP records run past the buffer's {arr.shape[0]} bytes")
+    rows = _rows(arr, RECORD_LEN)
+    ints = ("tracking_status", "prn", "cn0_dbhz", "glonass_fcn")
+    out: dict[str, Column] = {
+        name: np.empty(total, dtype=np.int64 if name in ints else np.float64) for name in _RANGECMP_COLUMNS
+    }
+    psr_std = np.asarray(PSR_STD_M, dtype=np.float64)
+    lam_table = np.full(1 << 14, np.nan)  # wavelength by key, NaN: unknown (or not looked up yet)
+    looked_up = np.zeros(1 << 14, dtype=bool)
+    for a in range(0, total, _RECORD_CHUNK):
+        b = min(total, a + _RECORD_CHUNK)
+        rec = rows[pos[a:b]].view(_RECORD)
+        status, dop_psr, w4, w5 = rec["status"], rec["doppler_psr"], rec["w4"], rec["w5"]
+        out["tracking_status"][a:b] = status
+        psr = out["pseudorange_m"][a:b]
+        np.multiply(rec["psr"], 16.0, out=psr)
+        psr += dop_psr >> 28
+        psr /= 128.0  # 36 bits over 2**7: exact
+        adr_raw = np.divide(rec["adr"], 256.0, out=out["adr_raw_cycles"][a:b])
+        fcn = (w5 >> 10) & 0x3F
+        out["glonass_fcn"][a:b] = fcn
+        # the wavelength per (system, signal type, GLONASS channel): the per-record function, once per key
+        key = ((status >> 16) & 0x7) | ((status >> 18) & 0xF8) | (fcn << 8)
+        new = np.flatnonzero(np.bincount(key, minlength=1 << 14).astype(bool) & ~looked_up)
+        for k in new.tolist():
+            lam_k = signal_wavelength_m(((k & 0x7) << 16) | (((k >> 3) & 0x1F) << 21), k >> 8)
+            if lam_k is not None:
+                lam_table[k] = lam_k
+        looked_up[new] = True
+        lam = lam_table[key]
+        unknown = np.isnan(lam)
+        # the 32-bit ADR wraps; the pseudorange tells which wrap (decode_rangecmp: round half away from
+        # zero, rolls - 0.5 below zero and rolls + 0.5 above, both truncated); computed in place
+        adr = np.divide(psr, lam, out=out["adr_cycles"][a:b])
+        adr += adr_raw
+        adr /= ADR_MAX_VALUE  # the rolls
+        adr += np.copysign(0.5, adr, out=lam)  # (into lam's memory: lam is not needed any more)
+        np.trunc(adr, out=adr)
+        adr *= -ADR_MAX_VALUE
+        adr += adr_raw
+        np.copyto(adr, adr_raw, where=unknown)  # no known wavelength: the wire value
+        np.divide((dop_psr << 4).view(np.int32) >> 4, 256.0, out=out["doppler_hz"][a:b])  # 28-bit two's complement
+        np.take(psr_std, w4 & 0xF, out=out["psr_std_m"][a:b])
+        np.divide(((w4 >> 4) & 0xF) + 1, 512.0, out=out["adr_std_cycles"][a:b])
+        out["prn"][a:b] = (w4 >> 8) & 0xFF
+        np.divide((w4 >> 16) | ((w5 & 0x1F) << 16), 32.0, out=out["lock_time_s"][a:b])
+        out["cn0_dbhz"][a:b] = ((w5 >> 5) & 0x1F) + 20
+    return out
+
+
+#: Record columns of RANGECMP, in the order of :class:`drivers.novatel.rawobs.RangeCmpRecord`'s fields.
+_RANGECMP_COLUMNS = tuple(f.name for f in fields(RangeCmpRecord))
 
 
 _ASCII_HEADER: tuple[tuple[str, Kind, type[_OpenIntEnum] | None], ...] = (
@@ -1163,10 +1391,10 @@ def _convert_tokens(
     return np.asarray(values, dtype=dtype), refused
 
 
-def _fits_int64(log: Log) -> bool:
+def _fits_int64(header: Header, body: Any) -> bool:
     """Every integer of the log fits an int64 column (ASCII can print any integer; no wire field is wider)."""
-    values = [getattr(log.header, n) for n in HEADER_COLUMNS[:-1]]
-    values += [getattr(log.body, f.name) for f in fields(log.body) if f.name != "prns"]
+    values = [getattr(header, n) for n in HEADER_COLUMNS[:-1]]
+    values += [getattr(body, f.name) for f in fields(body) if f.name not in ("prns", "records")]
     return all(_INT64_MIN <= v <= _INT64_MAX for v in values if isinstance(v, int))
 
 
@@ -1174,42 +1402,57 @@ def _value(v: Any) -> Any:
     return v.value if isinstance(v, Enum) else v
 
 
-def _logs_part(codec: BodyCodec, items: Sequence[tuple[Log, int, int, bool]]) -> _Part:
-    """Columns of logs decoded by the per-message path: (log, offset, length, binary)."""
-    header: dict[str, Column] = {}
-    headers = [lg.header for lg, *_ in items]
-    for name in HEADER_COLUMNS[:-1]:
-        vals = [_value(getattr(h, name)) for h in headers]
-        kind = _HEADER_KINDS[name]
-        header[name] = np.asarray(vals, dtype=str if kind is Kind.STR else
-                                  np.float64 if kind is Kind.FLOAT else np.int64)
+def _column(values: list[Any], kind: Kind) -> Column:
+    return np.asarray(values, dtype=str if kind is Kind.STR else np.float64 if kind is Kind.FLOAT else np.int64)
+
+
+_Decoded = tuple[Header, Any, int, int, bool]  # header, body, offset, length, binary
+
+
+def _logs_part(layout: _Layout, items: Sequence[_Decoded]) -> _Part:
+    """Columns of logs decoded by the per-message path."""
+    headers = [h for h, *_ in items]
+    header = {name: _column([_value(getattr(h, name)) for h in headers], _HEADER_KINDS[name])
+              for name in HEADER_COLUMNS[:-1]}
+    bodies = [b for _h, b, *_ in items]
     body: dict[str, Column] = {}
-    bodies = [lg.body for lg, *_ in items]
-    for spec in codec.specs:
-        vals = [_value(getattr(b, spec.name)) for b in bodies]
-        body[spec.name] = np.asarray(vals, dtype=str if spec.kind is Kind.STR else
-                                     np.float64 if spec.kind is Kind.FLOAT else np.int64)
-    if not codec.fixed_layout:
+    counts = records = None
+    if layout.records:  # RANGECMP: the count, and the records flattened in order
+        counts = np.asarray([len(b.records) for b in bodies], dtype=np.int64)
+        body["num_obs"] = counts
+        recs = [r for b in bodies for r in b.records]
+        records = {name: _column([getattr(r, name) for r in recs], kind) for name, kind in layout.records}
+    else:
+        for name, kind in layout.body:
+            body[name] = _column([_value(getattr(b, name)) for b in bodies], kind)
+    if layout.prns:
         prns = np.empty(len(bodies), dtype=object)
-        prns[:] = [tuple(b.prns) for b in bodies]  # type: ignore[union-attr]
+        prns[:] = [tuple(b.prns) for b in bodies]
         body["prns"] = prns
     return _Part(
-        np.asarray([o for _l, o, _n, _b in items], dtype=np.int64),
-        np.asarray([n for _l, _o, n, _b in items], dtype=np.int64),
-        np.asarray([b for _l, _o, _n, b in items], dtype=bool),
+        np.asarray([o for _h, _b, o, _n, _bin in items], dtype=np.int64),
+        np.asarray([n for _h, _b, _o, n, _bin in items], dtype=np.int64),
+        np.asarray([bin_ for *_x, bin_ in items], dtype=bool),
         header,
         body,
+        counts,
+        records,
     )
 
 
 def _concat(name: str, parts: Sequence[_Part]) -> LogColumns:
     """One log's parts (vectorised binary, vectorised ASCII, per message) as columns in buffer order."""
-    codec = CODECS_BY_NAME[name]
-    if not codec.fixed_layout and any("prns" not in p.body for p in parts):
+    layout = _LAYOUTS[name]
+    if layout.prns and any("prns" not in p.body for p in parts):
         raise TypeError(f"NovAtel {name}: PRN lists missing from a part")
+    if layout.records and any(p.counts is None or p.records is None for p in parts):
+        raise TypeError(f"NovAtel {name}: records missing from a part")
+    counts: IntArray | None
+    records: dict[str, Column]
     if len(parts) == 1 and bool(np.all(np.diff(parts[0].offset) > 0)):
         p = parts[0]
         offset, length, binary, header, body = p.offset, p.length, p.binary, dict(p.header), dict(p.body)
+        counts, records = p.counts, dict(p.records or {})
     else:
         offset = np.concatenate([p.offset for p in parts])
         order = np.argsort(offset, kind="stable")
@@ -1218,8 +1461,22 @@ def _concat(name: str, parts: Sequence[_Part]) -> LogColumns:
         binary = np.concatenate([p.binary for p in parts])[order]
         header = {k: np.concatenate([p.header[k] for p in parts])[order] for k in parts[0].header}
         body = {k: np.concatenate([p.body[k] for p in parts])[order] for k in parts[0].body}
+        counts, records = None, {}
+        if layout.records:
+            all_counts = np.concatenate([p.counts for p in parts if p.counts is not None])
+            all_first = np.cumsum(all_counts) - all_counts
+            counts = all_counts[order]
+            # record k of the reordered rows: the row's first record in the parts' order, plus its rank
+            take = np.repeat(all_first[order] - (np.cumsum(counts) - counts), counts)
+            take += np.arange(take.shape[0], dtype=np.int64)
+            records = {k: np.concatenate([p.records[k] for p in parts if p.records is not None])[take]
+                       for k, _kind in layout.records}
     _add_derived(name, header, body)
-    return LogColumns(name, codec.cls.MESSAGE_ID, offset, length, binary, header, body)
+    record_start = None
+    if counts is not None:
+        record_start = np.zeros(counts.shape[0] + 1, dtype=np.int64)
+        np.cumsum(counts, out=record_start[1:])
+    return LogColumns(name, layout.message_id, offset, length, binary, header, body, records, record_start)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1242,32 +1499,34 @@ def decode_columns(
 ) -> ColumnBatch:
     """Every NovAtel log in ``data`` (a complete buffer: a cut-off tail counts as truncated) as columns.
 
-    ``logs``: names to decode (``BESTPOS`` …; default every typed log); other valid frames are only
-    counted in :attr:`ColumnBatch.other`. See the module docstring for the columns.
+    ``logs``: names to decode (``BESTPOS``, ``RANGECMP`` …; default every log the columns decode); other
+    valid frames are only counted in :attr:`ColumnBatch.other`. See the module docstring for the columns.
 
     Raises:
-        ConfigError: a name in ``logs`` has no typed layout.
+        ConfigError: a name in ``logs`` is not a log the columns decode.
     """
     wanted = None
     if logs is not None:
         wanted = set(logs)
         for name in wanted:
-            _codec(name)  # raises for a name without a typed layout
+            _layout(name)  # raises for a name the columns do not decode
     buf = bytes(data)
     n = len(buf)
     arr = np.frombuffer(buf, dtype=np.uint8)
-    cands = _Candidates()
     scan = _Scan(buf, arr)
-    if n:
-        _locate_ascii(scan, 0x23, _K_ASCII, max_frame_len, cands)
-        _locate_ascii(scan, 0x25, _K_SHORT_ASCII, max_frame_len, cands)
-        _locate_binary(scan, max_frame_len, cands)
+    cands, skipped = _locate(scan, max_frame_len, skip_inside_binary=True)
     start, end, status, kind, star = cands.arrays()
     accepted, rejected = _walk(start, end, status)
+    if skipped.size and not _inside(skipped, start[accepted], end[accepted]).all():
+        # a good binary frame was not accepted (a frame overlapping it came first): the text frame
+        # candidates inside it count after all
+        cands, _ = _locate(scan, max_frame_len, skip_inside_binary=False)
+        start, end, status, kind, star = cands.arrays()
+        accepted, rejected = _walk(start, end, status)
     start, end, kind, star = start[accepted], end[accepted], kind[accepted], star[accepted]
     other: dict[str, int] = {}
     parts: dict[str, list[_Part]] = {}
-    slow: dict[str, list[tuple[Log, int, int, bool]]] = {}
+    slow: dict[str, list[_Decoded]] = {}
 
     def per_message(log: Log | None, error: str | None, offset: int, length: int, binary: bool) -> None:
         if log is None or error is not None or not isinstance(log.header, Header):
@@ -1276,16 +1535,26 @@ def decode_columns(
             else:
                 rejected[RejectReason.MALFORMED] += 1
             return
-        if isinstance(log.body, RawBody):
+        body: Any = log.body
+        if isinstance(body, RawBody):
+            layout = _LAYOUTS.get(log.name)
+            if layout is None or layout.raw is None or log.header.response or (
+                wanted is not None and log.name not in wanted
+            ):
+                other[log.name] = other.get(log.name, 0) + 1
+                return
+            try:  # a log the stream decoders keep raw: its rawobs decoder, as a caller of the Framer would
+                body = layout.raw(body)
+            except DecodeError:
+                rejected[RejectReason.MALFORMED] += 1
+                return
+        elif wanted is not None and log.name not in wanted:
             other[log.name] = other.get(log.name, 0) + 1
             return
-        if wanted is not None and log.name not in wanted:
-            other[log.name] = other.get(log.name, 0) + 1
-            return
-        if not _fits_int64(log):
+        if not _fits_int64(log.header, body):
             rejected[RejectReason.MALFORMED] += 1
             return
-        slow.setdefault(log.name, []).append((log, offset, length, binary))
+        slow.setdefault(log.name, []).append((log.header, body, offset, length, binary))
 
     n_short = int(np.count_nonzero((kind == _K_SHORT_BINARY) | (kind == _K_SHORT_ASCII)))
     if n_short:
@@ -1293,9 +1562,22 @@ def decode_columns(
     _decode_binary(buf, arr, start[kind == _K_BINARY], end[kind == _K_BINARY], wanted, parts, other, per_message)
     _decode_ascii(scan, start[kind == _K_ASCII], star[kind == _K_ASCII], wanted, parts, other, per_message)
     for name, items in slow.items():
-        parts.setdefault(name, []).append(_logs_part(CODECS_BY_NAME[name], items))
+        parts.setdefault(name, []).append(_logs_part(_LAYOUTS[name], items))
     columns = {name: _concat(name, ps) for name, ps in sorted(parts.items())}
     return ColumnBatch(columns, rejected, other, n)
+
+
+def _locate(scan: _Scan, max_frame_len: int, *, skip_inside_binary: bool) -> tuple[_Candidates, IntArray]:
+    """Every frame candidate of the buffer, and (``skip_inside_binary``) the text frame starts left out
+    because they lie inside good binary frames."""
+    cands = _Candidates()
+    if not scan.arr.shape[0]:
+        return cands, np.zeros(0, dtype=np.int64)
+    spans = _locate_binary(scan, max_frame_len, cands)
+    skip = spans if skip_inside_binary else None
+    skipped = [_locate_ascii(scan, sync, k, max_frame_len, cands, skip)
+               for sync, k in ((0x23, _K_ASCII), (0x25, _K_SHORT_ASCII))]
+    return cands, np.concatenate(skipped)
 
 
 _PerMessage = Callable[[Log | None, str | None, int, int, bool], None]
@@ -1314,14 +1596,30 @@ def _decode_binary(
     length = end - start
     for m in np.unique(mid).tolist():
         rows = mid == m
-        codec = CODECS_BY_ID.get(m)
-        name = codec.cls.MESSAGE_NAME if codec is not None else log_name_for_id(m)
-        if codec is None or (wanted is not None and name not in wanted):
+        layout = _LAYOUTS_BY_ID.get(m)
+        name = layout.name if layout is not None else log_name_for_id(m)
+        if layout is None or (wanted is not None and name not in wanted):
             other[name] = other.get(name, 0) + int(rows.sum())
             continue
-        fast = rows & (hdr_len == LONG_HEADER_LEN) & (mtype < 0x80) & (msg_len >= codec.size) & codec.fixed_layout
-        if fast.any():
-            parts.setdefault(name, []).append(_binary_part(codec, arr, start[fast], length[fast]))
+        codec = CODECS_BY_ID.get(m)
+        fast = rows & (hdr_len == LONG_HEADER_LEN) & (mtype < 0x80)
+        if codec is not None and codec.fixed_layout:
+            fast &= msg_len >= codec.size
+            if fast.any():
+                parts.setdefault(name, []).append(_binary_part(codec, arr, start[fast], length[fast]))
+        elif m == RangeCmp.MESSAGE_ID and codec is None:
+            # records in bulk where the body holds exactly its count of them (else the per-message
+            # path, whose decoder says what is wrong)
+            fast &= msg_len >= 4
+            at = start[fast] + LONG_HEADER_LEN
+            count = np.zeros(start.shape, dtype=np.int64)
+            count[fast] = arr[at].astype(np.int64) | arr[at + 1].astype(np.int64) << 8 | (
+                arr[at + 2].astype(np.int64) << 16) | arr[at + 3].astype(np.int64) << 24
+            fast &= msg_len == 4 + RECORD_LEN * count
+            if fast.any():
+                parts.setdefault(name, []).append(_rangecmp_part(arr, start[fast], length[fast]))
+        else:  # PSRDOP's variable list, the ephemerides (decoded with their checks): per message
+            fast = np.zeros_like(rows)
         for i in np.flatnonzero(rows & ~fast).tolist():
             s, e = int(start[i]), int(end[i])
             log, error = decode_verified(buf[s:e], False)

@@ -43,9 +43,11 @@ __all__ = [
     "decode_rangecmp",
     "encode_gloephemeris",
     "encode_gpsephem",
+    "gloephemeris_codec",
     "glonass_l1_hz",
     "glonass_l2_hz",
     "gpsephem_codec",
+    "signal_wavelength_m",
 ]
 
 #: RANGECMP record size (bytes).
@@ -139,7 +141,7 @@ class RangeCmpRecord:
     def wavelength_m(self) -> float | None:
         """Carrier wavelength of the signal (GLONASS: of its frequency channel); None for a signal whose
         frequency this decoder does not know."""
-        return _wavelength_m(self.tracking_status, self.glonass_fcn)
+        return signal_wavelength_m(self.tracking_status, self.glonass_fcn)
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,7 +164,9 @@ def glonass_l2_hz(fcn: int) -> float:
     return 1246.0e6 + fcn * 0.4375e6
 
 
-def _wavelength_m(status: int, glonass_fcn: int) -> float | None:
+def signal_wavelength_m(status: int, glonass_fcn: int) -> float | None:
+    """Carrier wavelength of the signal a channel tracking status names (system bits 16-18, signal type
+    bits 21-25; GLONASS: of frequency channel ``glonass_fcn`` − 7), None where this decoder does not know it."""
     system = (status >> 16) & 0x7
     signal = (status >> 21) & 0x1F
     if system == SatSystem.GLONASS:
@@ -195,7 +199,7 @@ def _decode_record(raw: bytes, where: str) -> RangeCmpRecord:
     cn0 = ((v >> 165) & 0x1F) + 20
     fcn = (v >> 170) & 0x3F
     adr = adr_raw
-    lam = _wavelength_m(status, fcn)
+    lam = signal_wavelength_m(status, fcn)
     if lam is not None:
         # The 32-bit ADR wraps; the pseudorange tells which wrap (OEM7 reference, RANGECMP).
         rolls = (psr / lam + adr_raw) / ADR_MAX_VALUE
@@ -480,6 +484,12 @@ GLOEPHEMERIS_FIELDS: tuple[FieldSpec, ...] = (
 GLOEPHEMERIS_LEN = 144
 
 _GLOEPHEMERIS = BodyCodec(cast(Any, GloEphemeris), GLOEPHEMERIS_FIELDS)
+
+
+def gloephemeris_codec() -> BodyCodec:
+    """The declarative body codec of GLOEPHEMERIS (without the slot and channel checks of
+    :func:`decode_gloephemeris`)."""
+    return _GLOEPHEMERIS
 
 
 def decode_gloephemeris(body: RawBody | bytes, fmt: BodyFormat = BodyFormat.BINARY) -> GloEphemeris:
