@@ -89,7 +89,7 @@ def expected_row(frame: Frame) -> dict[str, Any]:
     for f in fields(lg.body):
         value = getattr(lg.body, f.name)
         row[f"b.{f.name}"] = tuple(value) if f.name == "prns" else _plain(value)
-    if lg.name in ("MARKTIME", "MARK2TIME"):
+    if lg.name in ("MARKTIME", "MARK1TIME", "MARK2TIME"):
         row["b.event_gps_ns"] = _int64_or_missing(lambda: gps_to_ns(lg.body.week, lg.body.seconds))  # type: ignore[union-attr]
     if lg.name == "TIME":
         row["b.leap_seconds"] = _int64_or_missing(lambda: lg.body.leap_seconds)  # type: ignore[union-attr]

@@ -49,6 +49,7 @@ from drivers.novatel.enums import (
 )
 from drivers.novatel.framer import Frame, FrameKind, Framer, FrameReader, FramerStats, SkipReason, iter_frames
 from drivers.novatel.jsonview import frame_to_dict, log_to_dict
+from drivers.novatel.layouts import decode_version, encode_version
 from drivers.novatel.messages import (
     LOG_IDS,
     MESSAGE_TYPES,
@@ -57,10 +58,12 @@ from drivers.novatel.messages import (
     BestXyz,
     Body,
     BodyFormat,
+    ComponentType,
     Header,
     Heading,
     Heading2,
     Log,
+    Mark1Time,
     Mark2Pos,
     Mark2Time,
     MarkPos,
@@ -72,6 +75,8 @@ from drivers.novatel.messages import (
     Response,
     ShortHeader,
     Time,
+    Version,
+    VersionComponent,
     make_header,
     make_short_header,
 )
@@ -101,6 +106,7 @@ __all__ = [
     "BodyFormat",
     "ClockModelStatus",
     "ColumnBatch",
+    "ComponentType",
     "Datum",
     "Frame",
     "FrameKind",
@@ -112,6 +118,7 @@ __all__ = [
     "Heading2",
     "Log",
     "LogColumns",
+    "Mark1Time",
     "Mark2Pos",
     "Mark2Time",
     "MarkPos",
@@ -130,11 +137,14 @@ __all__ = [
     "TimeStatus",
     "UTCStatus",
     "VelocityType",
+    "Version",
+    "VersionComponent",
     "crc24q",
     "decode_abbreviated",
     "decode_ascii",
     "decode_binary",
     "decode_columns",
+    "decode_version",
     "encode_abbreviated",
     "encode_ascii",
     "encode_binary",
@@ -142,6 +152,7 @@ __all__ = [
     "encode_ok",
     "encode_prompt",
     "encode_response",
+    "encode_version",
     "frame_to_dict",
     "iter_frames",
     "log_to_dict",

@@ -15,7 +15,7 @@ the same values field for field, with the same names as the per-message dataclas
 (:mod:`drivers.novatel.messages`, :mod:`drivers.novatel.jsonview`): header fields in
 :attr:`LogColumns.header` (``port``, ``sequence``, ``idle_time_pct``, ``time_status``, ``week``,
 ``seconds``, ``receiver_status``, ``reserved``, ``sw_version``, ``source`` and ``gps_ns``),
-body fields in :attr:`LogColumns.body` (plus ``event_gps_ns`` for MARKTIME/MARK2TIME and
+body fields in :attr:`LogColumns.body` (plus ``event_gps_ns`` for MARKTIME/MARK1TIME/MARK2TIME and
 ``leap_seconds`` for TIME, as the dataclass properties). Floats are float64 (a float32 wire value
 widens exactly), integers, hex fields and enums int64 (an enum as its value; an unknown value
 stays a number, as the per-message ``UNKNOWN_<n>`` member does), strings numpy ``str``, PSRDOP's
@@ -277,8 +277,12 @@ def _empty(kind: Kind) -> Column:
     return np.zeros(0, dtype=np.int64)
 
 
+_EVENT_TIME_LOGS = frozenset({"MARKTIME", "MARK1TIME", "MARK2TIME"})
+"""Logs of an event input's GPS time: their columns get ``event_gps_ns``."""
+
+
 def _derived_names(name: str) -> tuple[str, ...]:
-    if name in ("MARKTIME", "MARK2TIME"):
+    if name in _EVENT_TIME_LOGS:
         return ("event_gps_ns",)
     if name == "TIME":
         return ("leap_seconds",)
@@ -1022,7 +1026,7 @@ def _leap_seconds(utc_offset_s: FloatArray) -> IntArray:
 
 def _add_derived(name: str, header: dict[str, Column], body: dict[str, Column]) -> None:
     header["gps_ns"] = gps_ns_columns(header["week"], header["seconds"])
-    if name in ("MARKTIME", "MARK2TIME"):
+    if name in _EVENT_TIME_LOGS:
         body["event_gps_ns"] = gps_ns_columns(body["week"], body["seconds"])
     elif name == "TIME":
         body["leap_seconds"] = _leap_seconds(body["utc_offset_s"])

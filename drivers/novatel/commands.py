@@ -35,6 +35,7 @@ __all__ = [
     "markcontrol_command",
     "serialconfig_command",
     "standard_configuration",
+    "undulation_command",
     "unlogall_command",
 ]
 
@@ -131,8 +132,15 @@ def serialconfig_command(
     )
 
 
+def undulation_command(ellipsoidal: bool) -> str:
+    """``UNDULATION USER 0`` (heights are ellipsoidal) or ``UNDULATION EGM96`` (mean sea level, the factory
+    setting): how the receiver reads a FIX POSITION height (OEM7 Commands and Logs Reference, UNDULATION, FIX)."""
+    return "UNDULATION USER 0.0" if ellipsoidal else "UNDULATION EGM96"
+
+
 def fix_position_command(lat_deg: float, lon_deg: float, hgt_m: float) -> str:
-    """``FIX POSITION lat lon hgt`` (WGS84 degrees, height above mean sea level in m)."""
+    """``FIX POSITION lat lon hgt`` (WGS84 degrees, height in m on the receiver's UNDULATION setting: mean sea
+    level under the factory EGM96, ellipsoidal after ``UNDULATION USER 0``)."""
     if not -90 <= lat_deg <= 90 or not -180 <= lon_deg <= 360:
         raise EncodeError(f"NovAtel FIX POSITION: latitude {lat_deg} / longitude {lon_deg} out of range")
     if not -1000 <= hgt_m <= 20000:
@@ -160,6 +168,7 @@ def standard_configuration(
     interface_modes: Sequence[tuple[str, str, str]] = (),
     serial_configs: Sequence[tuple[str, int]] = (),
     fix_position: tuple[float, float, float] | None = None,
+    fix_height_ellipsoidal: bool = True,
     mark_inputs: Sequence[str] = (),
     extra: Sequence[str] = (),
 ) -> tuple[str, ...]:
@@ -170,8 +179,9 @@ def standard_configuration(
         logs: the logs to request on ``port``.
         unlogall: start with ``UNLOGALL`` (stop every log on every port).
         interface_modes: ``(port, rx, tx)`` triples, e.g. ``("COM2", "RTCMV3", "NONE")`` on a rover.
-        serial_configs: ``(port, baud)`` pairs for other ports (e.g. the correction port).
-        fix_position: ``(lat_deg, lon_deg, hgt_m)`` for a base receiver.
+        serial_configs: ``(port, baud)`` pairs for other ports (e.g. the correction port), break detection off.
+        fix_position: ``(lat_deg, lon_deg, hgt_m)`` for a base receiver, sent after the UNDULATION command
+            that says how its height reads (``fix_height_ellipsoidal``: ellipsoidal, else mean sea level).
         mark_inputs: event inputs to enable (``"MARK1"``), positive edge.
         extra: further commands, sent last as given.
 
@@ -181,9 +191,11 @@ def standard_configuration(
     commands: list[str] = []
     if unlogall:
         commands.append(unlogall_command())
-    commands += [serialconfig_command(p, baud) for p, baud in serial_configs]
+    # break detection off: a correction link (radio, cable) must not reset the port on a line break
+    commands += [serialconfig_command(p, baud, break_detect=False) for p, baud in serial_configs]
     commands += [interfacemode_command(p, rx, tx) for p, rx, tx in interface_modes]
     if fix_position is not None:
+        commands.append(undulation_command(fix_height_ellipsoidal))
         commands.append(fix_position_command(*fix_position))
     commands += [markcontrol_command(mark) for mark in mark_inputs]
     commands += [log_command(port, request) for request in logs]

@@ -19,23 +19,29 @@ import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
 from enum import Enum
-from typing import Any
+from typing import Any, cast
 
 from drivers.novatel.enums import ClockModelStatus, Datum, PositionType, SolutionStatus, UTCStatus, _OpenIntEnum
 from drivers.novatel.messages import (
     BestPos,
     BestVel,
     BestXyz,
+    BodyFormat,
+    ComponentType,
     Heading,
     Heading2,
+    Mark1Time,
     Mark2Pos,
     Mark2Time,
     MarkPos,
     MarkTime,
     Message,
     PsrDop,
+    RawBody,
     RecordEmitter,
     Time,
+    Version,
+    VersionComponent,
     compile_function,
 )
 from vsccore.errors import DecodeError, EncodeError
@@ -92,6 +98,11 @@ def _enum(name: str, enum: type[_OpenIntEnum]) -> FieldSpec:
 
 def _str4(name: str) -> FieldSpec:
     return FieldSpec(name, "4s", Kind.STR)
+
+
+def _chars(name: str, size: int) -> FieldSpec:
+    """A fixed-length NUL-padded character field (``Char[size]``), quoted in ASCII."""
+    return FieldSpec(name, f"{size}s", Kind.STR)
 
 
 _SIGNAL_TAIL = (
@@ -414,6 +425,7 @@ class BodyCodec:
         "_fast_ascii",
         "_fast_binary",
         "_getter",
+        "_str_sizes",
         "_str_slots",
         "cls",
         "names",
@@ -435,6 +447,7 @@ class BodyCodec:
             (i, _enum_by_value(s.enum)) for i, s in enumerate(self.specs) if s.kind is Kind.ENUM and s.enum
         )
         self._str_slots = tuple(i for i, s in enumerate(self.specs) if s.kind is Kind.STR)
+        self._str_sizes = tuple(int(self.specs[i].code[:-1] or 1) for i in self._str_slots)
         parsers: list[Callable[[str], Any]] = []
         formatters: list[Callable[[Any], str]] = []
         for s in self.specs:
@@ -501,10 +514,10 @@ class BodyCodec:
     def encode_binary_values(self, msg: Any) -> bytes:
         values = list(self._getter(msg))
         try:
-            for i in self._str_slots:
+            for i, size in zip(self._str_slots, self._str_sizes, strict=True):
                 raw = values[i].encode("latin-1")
-                if len(raw) > 4:
-                    raise ValueError(f"{self.names[i]}={values[i]!r} is longer than 4 characters")
+                if len(raw) > size:
+                    raise ValueError(f"{self.names[i]}={values[i]!r} is longer than {size} characters")
                 values[i] = raw
             return self.struct.pack(*values)
         except (struct.error, ValueError, OverflowError, UnicodeEncodeError, AttributeError, TypeError) as exc:
@@ -629,6 +642,7 @@ def _build_codecs() -> dict[int, BodyCodec]:
         (BestVel, BESTVEL_FIELDS),
         (BestXyz, BESTXYZ_FIELDS),
         (MarkTime, EVENT_TIME_FIELDS),
+        (Mark1Time, EVENT_TIME_FIELDS),
         (Mark2Time, EVENT_TIME_FIELDS),
         (Time, TIME_FIELDS),
         (Heading, HEADING_FIELDS),
@@ -645,3 +659,73 @@ CODECS_BY_ID: dict[int, BodyCodec] = _build_codecs()
 CODECS_BY_NAME: dict[str, BodyCodec] = {c.cls.MESSAGE_NAME: c for c in CODECS_BY_ID.values()}
 #: Body codec by body class.
 CODECS_BY_CLASS: dict[type, BodyCodec] = {c.cls: c for c in CODECS_BY_ID.values()}
+
+
+# --- VERSION (kept raw in the stream, decoded on demand) -------------------------------------
+
+#: One VERSION component (OEM7 Commands and Logs Reference, VERSION): Enum type, Char[16] model, PSN,
+#: hardware, software and boot versions, Char[12] compile date and time — 108 bytes, after a ulong count.
+VERSION_COMPONENT_FIELDS: tuple[FieldSpec, ...] = (
+    _enum("component_type", ComponentType),
+    _chars("model", 16),
+    _chars("psn", 16),
+    _chars("hw_version", 16),
+    _chars("sw_version", 16),
+    _chars("boot_version", 16),
+    _chars("compile_date", 12),
+    _chars("compile_time", 12),
+)
+_VERSION_COMPONENT = BodyCodec(cast(Any, VersionComponent), VERSION_COMPONENT_FIELDS)
+_COUNT = struct.Struct("<I")
+
+
+def decode_version(body: RawBody | bytes, fmt: BodyFormat = BodyFormat.BINARY) -> Version:
+    """VERSION body (binary bytes, or the ASCII / abbreviated text after the header) into :class:`Version`.
+
+    Raises:
+        DecodeError: the count does not match the components the body carries, or a field does not parse.
+    """
+    if isinstance(body, RawBody):
+        data, fmt = body.data, body.fmt
+    else:
+        data = body
+    size = _VERSION_COMPONENT.size
+    if fmt is BodyFormat.BINARY:
+        if len(data) < 4:
+            raise DecodeError(f"NovAtel VERSION binary body has {len(data)} bytes, needs at least 4")
+        (count,) = _COUNT.unpack_from(data)
+        if len(data) < 4 + count * size:
+            raise DecodeError(f"NovAtel VERSION binary body of {len(data)} bytes cannot hold {count} components")
+        comps = tuple(
+            VersionComponent(*_VERSION_COMPONENT.decode_binary_values(data, 4 + k * size)) for k in range(count)
+        )
+        return Version(comps)
+    text = data.decode("latin-1").replace("\r", " ").replace("\n", " ").replace("<", " ")
+    tokens = split_ascii_fields(text) if fmt is BodyFormat.ASCII else split_abbreviated_fields(text)
+    tokens = [t.strip() for t in tokens]
+    try:
+        count = int(tokens[0])
+    except (IndexError, ValueError) as exc:
+        raise DecodeError(f"NovAtel VERSION ASCII body does not start with a component count: {exc}") from exc
+    n = len(VERSION_COMPONENT_FIELDS)
+    if count < 0 or len(tokens) < 1 + count * n:
+        raise DecodeError(f"NovAtel VERSION ASCII says {count} components but carries {len(tokens) - 1} fields")
+    comps = tuple(VersionComponent(*_VERSION_COMPONENT.decode_tokens(tokens, 1 + k * n)) for k in range(count))
+    return Version(comps)
+
+
+def encode_version(version: Version, fmt: BodyFormat = BodyFormat.BINARY) -> RawBody:
+    """VERSION body as a :class:`RawBody` ready for the frame encoders.
+
+    Raises:
+        EncodeError: a text is longer than its field.
+    """
+    comps = version.components
+    if fmt is BodyFormat.BINARY:
+        return RawBody(_COUNT.pack(len(comps)) + b"".join(_VERSION_COMPONENT.encode_binary(c) for c in comps), fmt)
+    tokens = [str(len(comps))]
+    for c in comps:
+        tokens += _VERSION_COMPONENT.format_tokens(c)
+    if fmt is BodyFormat.ASCII:
+        return RawBody(",".join(tokens).encode("latin-1"), fmt)
+    raise EncodeError("NovAtel VERSION: the abbreviated form is written by encode_abbreviated from the ASCII body")

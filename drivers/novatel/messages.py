@@ -17,7 +17,15 @@ from dataclasses import dataclass, field, fields, is_dataclass
 from enum import Enum
 from typing import Any, ClassVar, TypeVar
 
-from drivers.novatel.enums import ClockModelStatus, Datum, PositionType, SolutionStatus, TimeStatus, UTCStatus
+from drivers.novatel.enums import (
+    ClockModelStatus,
+    Datum,
+    PositionType,
+    SolutionStatus,
+    TimeStatus,
+    UTCStatus,
+    _OpenIntEnum,
+)
 from vsccore.gpstime import gps_to_ns
 
 #: NovAtel log name → message ID. The typed logs plus common logs that pass through raw, so
@@ -65,6 +73,7 @@ LOG_IDS: dict[str, int] = {
     "HEADING": 971,
     "PSRDOP2": 1163,
     "BESTSATS": 1194,
+    "MARK1TIME": 1130,
     "HEADING2": 1335,
     "INSPVAX": 1465,
 }
@@ -283,6 +292,18 @@ class MarkTime(EventTime):
 
 
 @dataclass(frozen=True, slots=True)
+class Mark1Time(MarkTime):
+    """MARK1TIME (1130): GPS time of the MARK1 event input, the replacement of the deprecated MARKTIME (231).
+
+    Same body as MARKTIME (OEM7 Commands and Logs Reference, MARK1TIME … MARK4TIME), so code that
+    takes a :class:`MarkTime` takes this too.
+    """
+
+    MESSAGE_NAME: ClassVar[str] = "MARK1TIME"
+    MESSAGE_ID: ClassVar[int] = 1130
+
+
+@dataclass(frozen=True, slots=True)
 class Mark2Time(EventTime):
     """MARK2TIME (616): GPS time of the MARK2 event input."""
 
@@ -391,6 +412,72 @@ class PsrDop:
     prns: tuple[int, ...] = field(default=())
 
 
+class ComponentType(_OpenIntEnum):
+    """Component type of a VERSION entry (OEM7 Commands and Logs Reference, VERSION, Component Types)."""
+
+    UNKNOWN = 0
+    GPSCARD = 1
+    CONTROLLER = 2
+    ENCLOSURE = 3
+    IMUCARD = 7
+    USERINFO = 8
+    OEM6FPGA = 12
+    GPSCARD2 = 13
+    BLUETOOTH = 14
+    WIFI = 15
+    CELLULAR = 16
+    RADIO = 18
+    WWW_CONTENT = 19
+    REGULATORY = 20
+    OEM7FPGA = 21
+    APPLICATION = 22
+    PACKAGE = 23
+    DEFAULT_CONFIG = 25
+    WHEELSENSOR = 26
+    EMBEDDED_AUTH = 27
+    DB_HEIGHTMODEL = 981073920
+    DB_USERAPP = 981073921
+    DB_USERAPPAUTO = 981073925
+    DB_WWWISO = 981073928
+    DB_LUA_SCRIPTS = 981073930
+
+
+@dataclass(frozen=True, slots=True)
+class VersionComponent:
+    """One component of a VERSION log (108 bytes binary): card type, model, product serial number (PSN),
+    hardware, software and boot versions, and the software's compile date and time."""
+
+    MESSAGE_NAME: ClassVar[str] = "VERSION"
+    MESSAGE_ID: ClassVar[int] = 37
+
+    component_type: ComponentType
+    model: str
+    psn: str
+    hw_version: str
+    sw_version: str
+    boot_version: str
+    compile_date: str
+    compile_time: str
+
+
+@dataclass(frozen=True, slots=True)
+class Version:
+    """VERSION (37): a ulong count, then one :class:`VersionComponent` per component of the receiver.
+
+    The codec keeps VERSION as :class:`RawBody` in the stream; ``drivers.novatel.layouts.decode_version``
+    turns it into this on demand (the PSN identifies a receiver).
+    """
+
+    MESSAGE_NAME: ClassVar[str] = "VERSION"
+    MESSAGE_ID: ClassVar[int] = 37
+
+    components: tuple[VersionComponent, ...]
+
+    def component(self, kind: ComponentType = ComponentType.GPSCARD) -> VersionComponent | None:
+        """The first component of a kind (the GNSS card by default), None when there is none."""
+        return next((c for c in self.components if c.component_type == kind), None)
+
+
 class BodyFormat(Enum):
     """Wire form that a :class:`RawBody` was taken from."""
 
@@ -412,14 +499,17 @@ class RawBody:
 
 
 Message = (
-    BestPos | MarkPos | Mark2Pos | BestVel | BestXyz | MarkTime | Mark2Time | Time | Heading | Heading2 | PsrDop
+    BestPos | MarkPos | Mark2Pos | BestVel | BestXyz | MarkTime | Mark1Time | Mark2Time | Time | Heading | Heading2
+    | PsrDop
 )
 Body = Message | RawBody
 
 #: Typed body classes by message ID.
 MESSAGE_TYPES: dict[int, type[Message]] = {
     cls.MESSAGE_ID: cls
-    for cls in (BestPos, MarkPos, Mark2Pos, BestVel, BestXyz, MarkTime, Mark2Time, Time, Heading, Heading2, PsrDop)
+    for cls in (
+        BestPos, MarkPos, Mark2Pos, BestVel, BestXyz, MarkTime, Mark1Time, Mark2Time, Time, Heading, Heading2, PsrDop
+    )
 }
 
 

@@ -36,6 +36,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from enum import Enum
 
+from drivers.novatel.enums import TimeStatus
 from drivers.novatel.framer import LOG_KINDS, Frame, FrameKind, Framer, FramerStats
 from drivers.novatel.messages import BestPos, Log, Response, Time
 from drivers.serialport import SerialTransport, reconnect_delays
@@ -58,6 +59,8 @@ AUTOBAUD_RATES = (115200, 230400, 460800, 921600, 57600, 38400, 19200, 9600)
 
 #: Frame kinds that prove the host reads the receiver at the right baud rate.
 _PROOF_KINDS = frozenset({*LOG_KINDS, FrameKind.RESPONSE, FrameKind.PROMPT})
+_ANSWER_KINDS = frozenset({FrameKind.RESPONSE, FrameKind.PROMPT})
+"""Frames that answer the rig's commands; any other frame is the receiver's own output."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -78,6 +81,10 @@ class ReceiverSettings:
         reconnect_first_s, reconnect_max_s: back-off between reconnect attempts (doubling).
         rate_window_s: window of the messages-per-second figures.
         max_frame_len: framer bound on one frame (bytes).
+        silence_reconfigure_s: a configured receiver whose output (logs, RTCM3, NMEA) stops this long while its port
+            stays open
+            is configured again (a power dip resets an OEM7 behind an open USB or serial port: it drops every
+            unsaved log and starts over at time status UNKNOWN); None: never.
     """
 
     name: str
@@ -93,6 +100,7 @@ class ReceiverSettings:
     reconnect_max_s: float = 5.0
     rate_window_s: float = 5.0
     max_frame_len: int = 32768
+    silence_reconfigure_s: float | None = None
 
     def __post_init__(self) -> None:
         where = f"receiver {self.name!r}"
@@ -100,6 +108,8 @@ class ReceiverSettings:
             raise ConfigError(f"{where}: name and port must not be empty")
         if self.baud <= 0 or any(b <= 0 for b in self.autobaud_rates):
             raise ConfigError(f"{where}: baud rates must be > 0")
+        if self.silence_reconfigure_s is not None and not self.silence_reconfigure_s > 0:
+            raise ConfigError(f"{where}: silence_reconfigure_s must be > 0 or None, got {self.silence_reconfigure_s}")
         for key in ("command_timeout_s", "autobaud_probe_s", "read_timeout_s", "reconnect_first_s", "rate_window_s"):
             if not getattr(self, key) > 0:
                 raise ConfigError(f"{where}: {key} must be > 0, got {getattr(self, key)}")
@@ -135,6 +145,7 @@ class ReceiverEventKind(Enum):
     CONNECT_FAILED = "connect_failed"  # first failed attempt of a series (then silent back-off)
     BAUD_DETECTED = "baud_detected"  # automatic detection found the rate (baud)
     CONFIGURED = "configured"  # every configuration command answered <OK
+    RESET = "reset"  # the receiver fell silent or its time status fell back: configured again (message says which)
     COMMAND_FAILED = "command_failed"  # a command got <ERROR or no answer (command, error)
     CONFIGURATION_FAILED = "configuration_failed"  # the configuration pass ended with failures
     DISCONNECTED = "disconnected"  # port lost (error says why)
@@ -189,6 +200,8 @@ class ReceiverHealth:
     num_soln_svs: int | None = None
     diff_age_s: float | None = None
     leap_seconds: int | None = None
+    resets: int = 0
+    """Times the receiver was configured again after it fell silent or its time status fell back."""
 
 
 @dataclass(eq=False)
@@ -301,6 +314,11 @@ class NovatelReceiver:
         self._last_rx_ns: int | None = None
         self._last_bestpos: BestPos | None = None
         self._leap_seconds: int | None = None
+        self._last_log_ns: int | None = None
+        self._best_time_status: TimeStatus | None = None
+        self._reset_why: str | None = None
+        self._resets = 0
+        self._last_config_ns = 0
 
     # --- public API -------------------------------------------------------------------------
 
@@ -428,6 +446,7 @@ class NovatelReceiver:
                 num_soln_svs=pos.num_soln_svs if pos else None,
                 diff_age_s=pos.diff_age_s if pos else None,
                 leap_seconds=self._leap_seconds,
+                resets=self._resets,
             )
 
     def stop(self, timeout_s: float = 5.0) -> None:
@@ -559,8 +578,33 @@ class NovatelReceiver:
         while not self._stop.is_set():
             self._serve_requests(transport)
             self._read_once(transport)
+            why = self._reset_seen()
+            if why is not None:
+                self._resets += 1
+                self._event(ReceiverEventKind.RESET, f"{why}: configuring it again")
+                self._configure(transport)
+
+    def _reset_seen(self) -> str | None:
+        """Why the receiver looks reset behind an open port (None: it does not): a log's time status fell back
+        from fine to coarse time, or no log came for ``silence_reconfigure_s`` since the last log or the
+        last configuration pass (so a pass the resetting receiver did not answer is tried again)."""
+        s = self.settings
+        if not s.commands:
+            return None
+        with self._state_lock:
+            why, self._reset_why = self._reset_why, None
+            last = max(self._last_log_ns or 0, self._last_config_ns)
+        if why is not None or s.silence_reconfigure_s is None:
+            return why
+        silent_ns = self._clock.now_ns() - last
+        if silent_ns < s.silence_reconfigure_s * 1e9:
+            return None
+        return f"no log for {silent_ns / 1e9:.1f} s with the port open (a reset drops unsaved logs)"
 
     def _configure(self, transport: SerialTransport) -> None:
+        with self._state_lock:
+            self._last_config_ns = self._clock.now_ns()
+            self._best_time_status = None
         errors: list[RigError] = []
         for command in self.settings.commands:
             try:
@@ -660,8 +704,13 @@ class NovatelReceiver:
                 self._last_rx_ns = host_ns
             for frame in frames:
                 self._rates.add(_message_key(frame), host_ns)
+                if frame.kind not in _ANSWER_KINDS:  # the receiver's own output (logs, RTCM3, NMEA): alive
+                    self._last_log_ns = host_ns
                 message = frame.message
                 if isinstance(message, Log):
+                    status = getattr(message.header, "time_status", None)  # short headers carry none
+                    if status is not None:
+                        self._watch_time_status(status)
                     body = message.body
                     if isinstance(body, BestPos):
                         self._last_bestpos = body
@@ -686,6 +735,15 @@ class NovatelReceiver:
                     f"data consumer raised {type(exc).__name__}: {exc}",
                     error=DeviceError(f"NovAtel receiver {self.name}: data consumer raised {exc!r}"),
                 )
+
+    def _watch_time_status(self, status: TimeStatus) -> None:
+        """Called under ``_state_lock``: a fall from fine time (FINE or better) to coarse time is a reset."""
+        best = self._best_time_status
+        if best is None or status >= best:
+            self._best_time_status = status
+        elif best >= TimeStatus.FINE > status:
+            self._reset_why = f"time status fell from {best.name} to {status.name}"
+            self._best_time_status = status
 
     def _lost(self, transport: SerialTransport, exc: DeviceError) -> None:
         now = self._clock.now_ns()

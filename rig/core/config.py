@@ -365,6 +365,8 @@ def _novatel_baud(value: int) -> int:
 
 
 NovatelBaud = Annotated[int, AfterValidator(_novatel_baud)]
+ReceiverPort = Literal["COM1", "COM2", "COM3", "USB1", "USB2", "USB3", "ICOM1"]
+"""An OEM7 receiver port by name (OEM7 Commands and Logs Reference, COM ports and the serial port table)."""
 
 
 def _default_rover_logs() -> tuple[LogRequest, ...]:
@@ -386,14 +388,29 @@ class ReceiverConfig(_Model):
     port: str
     baud: NovatelBaud = 115200
     autobaud: bool = False
-    command_port: str = "COM1"
-    correction_port: str = "COM2"
+    command_port: ReceiverPort = "COM1"
+    """The receiver port ``port`` is cabled to (COM1–3, or USB1–3 for a PwrPak7 on USB). Logs are requested
+    on the port the commands come in on (``LOG`` without a port: THISPORT), never by this name: over USB,
+    ``LOG COM1 …`` would go to the physical COM1, not to the laptop."""
+    correction_port: ReceiverPort = "COM2"
+    """The receiver port set to receive corrections (``INTERFACEMODE <port> RTCMV3 NONE``)."""
     correction_device: str | None = None
-    """Host serial port (path or URL, ``sim://NAME/COM2`` when simulated) wired to ``correction_port``;
-    None: the relay writes corrections through the receiver's command port."""
+    """Host serial port (path or URL, ``sim://NAME/COM2`` when simulated) cabled to ``correction_port``. A
+    relay sink ``receiver:NAME`` needs it: the command port stays in NOVATEL mode, which ignores raw RTCM3."""
+    correction_baud: NovatelBaud = 115200
+    """Baud rate of ``correction_port``; set on the receiver (``SERIALCONFIG``) and on ``correction_device``
+    when the rig owns that cable (a relay sink). The factory setting of a COM port is 9600."""
     correction_format: Literal["rtcmv3", "rtca", "cmr", "novatel"] = "rtcmv3"
     logs: tuple[LogRequest, ...] = Field(default_factory=_default_rover_logs)
     fix_position: tuple[float, float, float] | None = None
+    """A base's surveyed antenna position: latitude, longitude (degrees), height (m) on ``fix_height``."""
+    fix_height: Literal["ellipsoidal", "msl"] = "ellipsoidal"
+    """What ``fix_position``'s height is: above the WGS84 ellipsoid (the rig sends ``UNDULATION USER 0``
+    before ``FIX``) or above mean sea level (``UNDULATION EGM96``, the factory setting). A height read the
+    wrong way is 25–50 m off: the base flags INTEGRITY_WARNING and stops sending corrections."""
+    serial_number: str | None = None
+    """The receiver's PSN (``LOG VERSION``). Given, a receiver answering with another one is refused by name
+    (two USB adapters swapped after a replug); the one found is recorded either way."""
     extra_commands: tuple[str, ...] = ()
     command_timeout_s: Positive = 2.0
     output_latency_s: NonNegative | None = None
@@ -631,6 +648,15 @@ class SessionConfig(_Model):
             for endpoint in (self.relay.source, *self.relay.sinks):
                 if endpoint.startswith("receiver:") and endpoint.removeprefix("receiver:") not in names:
                     raise ValueError(f"relay endpoint {endpoint!r} names no receiver (receivers: {names})")
+            by_name = {r.name: r for r in self.receivers}
+            for endpoint in self.relay.sinks:
+                rc = by_name.get(endpoint.removeprefix("receiver:")) if endpoint.startswith("receiver:") else None
+                if rc is not None and rc.correction_device is None:
+                    raise ValueError(
+                        f"relay sink {endpoint!r}: receiver {rc.name!r} has no correction_device, the host port "
+                        f"cabled to its {rc.correction_port}; its command port stays in NOVATEL mode, which ignores "
+                        f"raw RTCM3 (give correction_device, e.g. '/dev/serial/by-id/…' or 'sim://{rc.name}/"
+                        f"{rc.correction_port}', and correction_baud)")
         return self
 
     @property

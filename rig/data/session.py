@@ -1096,7 +1096,7 @@ class Session:
 # GNSS logs decoded from raw bytes, in the decoded topics' columns
 # ---------------------------------------------------------------------------------------------
 
-_RAW_GNSS_LOGS = ("BESTPOS", "BESTVEL", "HEADING", "HEADING2", "MARKPOS", "MARKTIME", "TIME")
+_RAW_GNSS_LOGS = ("BESTPOS", "BESTVEL", "HEADING", "HEADING2", "MARKPOS", "MARKTIME", "MARK1TIME", "TIME")
 
 
 @dataclass(frozen=True, slots=True)
@@ -1153,9 +1153,14 @@ def gnss_record_columns(batch: Any) -> dict[str, RawGnssRecords]:
                              ("bestvel", "BESTVEL", "velocity")):
         c = batch.log(log)
         out[topic] = RawGnssRecords(c.header["gps_ns"], c.end, _record_columns(kind, c))
-    c = batch.log("MARKTIME")
-    cols = _record_columns("marktime", c)
-    out["marktime"] = RawGnssRecords(c.body["event_gps_ns"], c.end, {**cols, "event_input": np.full(len(c), "MARK1")})
+    # the sync switch's event time: MARK1TIME, or the deprecated MARKTIME of older configurations (one topic)
+    m0, m1 = batch.log("MARKTIME"), batch.log("MARK1TIME")
+    order = np.argsort(np.concatenate([m0.offset, m1.offset]), kind="stable")
+    c0, c1 = _record_columns("marktime", m0), _record_columns("marktime", m1)
+    marks = {k: np.concatenate([c0[k], c1[k]])[order] for k in c0}
+    marks["event_input"] = np.full(order.size, "MARK1")
+    out["marktime"] = RawGnssRecords(np.concatenate([m0.body["event_gps_ns"], m1.body["event_gps_ns"]])[order],
+                                     np.concatenate([m0.end, m1.end])[order], marks)
     c = batch.log("TIME")
     b = c.body
     iso = [f"{y:04d}-{mo:02d}-{d:02d}T{hh:02d}:{mi:02d}:{ms // 1000:02d}.{ms % 1000:03d}Z" for y, mo, d, hh, mi, ms in

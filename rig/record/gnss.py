@@ -18,7 +18,9 @@ from drivers.novatel import BestPos, BestVel, Heading, Heading2, MarkPos, MarkTi
 from drivers.novatel.commands import LogRequest as NovatelLog
 from drivers.novatel.commands import LogTrigger as NovatelTrigger
 from drivers.novatel.commands import standard_configuration
-from drivers.novatel.messages import LOG_IDS
+from drivers.novatel.enums import TimeStatus
+from drivers.novatel.layouts import decode_version
+from drivers.novatel.messages import LOG_IDS, RawBody, VersionComponent
 from drivers.novatel.receiver import (
     NovatelReceiver,
     ReceivedChunk,
@@ -27,10 +29,11 @@ from drivers.novatel.receiver import (
     ReceiverSettings,
 )
 from drivers.relay import PushSource
-from rig.core.config import ReceiverConfig
+from rig.core.config import LogTrigger, ReceiverConfig
 from rig.core.topics import EventKind, Severity
 from rig.record.device import Device, DeviceContext
 from rig.record.status import DeviceState
+from vsccore.errors import DecodeError
 from vsccore.gpstime import NS_PER_S
 
 if TYPE_CHECKING:
@@ -44,23 +47,45 @@ log = logging.getLogger(__name__)
 
 _CORRECTION_RX = {"rtcmv3": "RTCMV3", "rtca": "RTCA", "cmr": "CMR", "novatel": "NOVATEL"}
 _SYNC_LOGS = (BestPos, BestVel, Time)
-"""Logs output on the receiver's solution schedule: their (GPS time, receive time) pairs feed the time base."""
+"""Logs output on the receiver's solution schedule: their (GPS time, receive time) pairs feed the time base,
+once the receiver's clock is steered to GPS time (FINESTEERING: before it, after power-up or a reset, a log's
+GPS time is the receiver's coarse guess, OEM7 Commands and Logs Reference, "GPS Reference Time Status")."""
+_SILENCE_PERIODS = 3.0
+"""A receiver is configured again when its logs stop for this many of its longest log period (at least
+:data:`_SILENCE_MIN_S`): an OEM7 reset behind an open port drops every unsaved log."""
+_SILENCE_MIN_S = 3.0
+
+
+def silence_reconfigure_s(rc: ReceiverConfig) -> float:
+    """How long a receiver's logs may stop before the rig configures it again (see :data:`_SILENCE_PERIODS`)."""
+    periods = [lr.period_s for lr in rc.logs if lr.trigger is LogTrigger.ONTIME and lr.period_s]
+    return max(_SILENCE_MIN_S, _SILENCE_PERIODS * max(periods, default=0.0))
 
 def receiver_commands(rc: ReceiverConfig) -> tuple[str, ...]:
-    """The configuration commands a receiver gets at every (re)connect."""
-    logs = tuple(
-        NovatelLog(lr.name, NovatelTrigger(lr.trigger.value.upper()), lr.period_s) for lr in rc.logs
-    )
+    """The configuration commands a receiver gets at every (re)connect.
+
+    Logs go to THISPORT (the port the commands come in on: over USB that is the laptop's USB port, while
+    ``LOG COM1 …`` would go to the physical COM1). A rover's correction port receives RTCM3 at its own baud,
+    set when the rig owns the cable to it; a base's fixed height is sent with the UNDULATION that says how to
+    read it. ``LOG VERSIONB ONCE`` first: the receiver's serial number identifies it.
+    """
+    requests = [NovatelLog("VERSIONB", NovatelTrigger.ONCE), *(
+        NovatelLog(lr.name, NovatelTrigger(lr.trigger.value.upper()), lr.period_s) for lr in rc.logs)]
     names = {_log_base_name(lr.name) for lr in rc.logs}
     modes: list[tuple[str, str, str]] = []
+    serial: list[tuple[str, int]] = []
     if rc.role == "rover":
         modes.append((rc.correction_port, _CORRECTION_RX[rc.correction_format], "NONE"))
+        if rc.correction_device is not None:
+            serial.append((rc.correction_port, rc.correction_baud))
     return standard_configuration(
-        rc.command_port,
-        logs,
+        "THISPORT",
+        requests,
         interface_modes=modes,
+        serial_configs=serial,
         fix_position=rc.fix_position if rc.role == "base" else None,
-        mark_inputs=["MARK1"] if names & {"MARKPOS", "MARKTIME"} else [],
+        fix_height_ellipsoidal=rc.fix_height == "ellipsoidal",
+        mark_inputs=["MARK1"] if names & {"MARKPOS", "MARKTIME", "MARK1TIME"} else [],
         extra=rc.extra_commands,
     )
 
@@ -139,10 +164,15 @@ class GnssDevice(Device):
             ("heading", T.gnss_heading))}
         self.last_pos: tuple[int, BestPos] | None = None
         self.last_vel: tuple[int, BestVel] | None = None
+        self.identity: VersionComponent | None = None
+        """The receiver's GNSS card as its VERSION log gave it (model, PSN, firmware)."""
+        self.refused: str | None = None
+        """Why this port's receiver is not taken as ours (another serial number than configured)."""
         settings = ReceiverSettings(
             name=rc.name, port=port, baud=rc.baud, commands=receiver_commands(rc),
             command_timeout_s=rc.command_timeout_s, autobaud=rc.autobaud,
             reconnect_first_s=ctx.reconnect.first_s, reconnect_max_s=ctx.reconnect.max_s,
+            silence_reconfigure_s=silence_reconfigure_s(rc),
         )
         self.rx = NovatelReceiver(settings, on_data=self._on_data, on_event=self._on_event, clock=ctx.clock)
 
@@ -172,7 +202,12 @@ class GnssDevice(Device):
             body = lg.body
             gps_ns = lg.header.gps_ns
             name = lg.name
-            if isinstance(body, _SYNC_LOGS):
+            if name == "VERSION" and isinstance(body, RawBody):
+                self._identify(body, host)
+                continue
+            if self.refused is not None:
+                continue  # another receiver on this port: its raw bytes are kept, nothing is taken as ours
+            if isinstance(body, _SYNC_LOGS) and getattr(lg.header, "time_status", None) is TimeStatus.FINESTEERING:
                 # first byte left the receiver output_latency after the data time; the read returns
                 # once the last byte is in: take both known parts of the latency off
                 tx_ns = round(len(frame.raw) * self.ns_per_byte)
@@ -208,6 +243,30 @@ class GnssDevice(Device):
             elif isinstance(body, Heading | Heading2):
                 self.source.put(self.topics["heading"], t, host, _heading(lg.header, body))
 
+    def _identify(self, body: RawBody, host: int) -> None:
+        """The receiver's VERSION: record who answered on this port; refuse another than the configured one."""
+        try:
+            card = decode_version(body).component()
+        except DecodeError as exc:
+            self.event(EventKind.WARNING, f"VERSION log does not decode: {exc}", severity=Severity.WARNING,
+                       host_ns=host)
+            return
+        if card is None:
+            return
+        self.identity = card
+        want = self.rc.serial_number
+        details: dict[str, Any] = {"model": card.model, "serial_number": card.psn, "firmware": card.sw_version,
+                                   "port": self.port}
+        if want is not None and card.psn.strip() != want.strip():
+            self.refused = (f"{self.port} answers as receiver PSN {card.psn}, not {self.rc.name}'s {want}: "
+                            "ports swapped? (use /dev/serial/by-id paths)")
+            self.ctx.board.update(self.name, state=DeviceState.LOST, detail=f"REFUSED: wrong receiver {card.psn}")
+            self.event(EventKind.ERROR, self.refused, severity=Severity.ERROR, host_ns=host, **details)
+            return
+        self.refused = None
+        self.event(EventKind.INFO, f"receiver {card.model} PSN {card.psn}, firmware {card.sw_version}",
+                   host_ns=host, **details)
+
     def _on_event(self, ev: ReceiverEvent) -> None:
         board = self.ctx.board
         k = ev.kind
@@ -221,6 +280,10 @@ class GnssDevice(Device):
                 start = tb.host_to_utc(ev.host_ns - ev.gap_ns)
                 self.source.gap(start, tb.host_to_utc(ev.host_ns),
                                 f"no data from {ev.port} for {ev.gap_ns / 1e9:.3f} s", **details)
+        elif k is ReceiverEventKind.RESET:
+            board.update(self.name, state=DeviceState.DEGRADED, detail=ev.message)
+            self.event(EventKind.WARNING, f"receiver reset? {ev.message}", severity=Severity.WARNING,
+                       host_ns=ev.host_ns, **details)
         elif k is ReceiverEventKind.CONFIGURED:
             board.update(self.name, state=DeviceState.OK)
             self.event(EventKind.INFO, f"configured: {ev.message}", host_ns=ev.host_ns, **details)

@@ -7,7 +7,7 @@ import os
 from collections.abc import Callable, Mapping
 
 import rig.core.topics as T  # noqa: N812 - topics used as a namespace
-from drivers.relay import CallbackSink, CorrectionFrame, PushSource, Relay, Sink, open_sink, open_source
+from drivers.relay import CorrectionFrame, PushSource, Relay, Sink, open_sink, open_source
 from drivers.relay import Source as RelaySource
 from drivers.relay.endpoints import RedactedEndpoint, Secret
 from rig.core.config import ReceiverConfig, RelayConfig
@@ -56,11 +56,11 @@ class RelayDevice(Device):
             if text.startswith("receiver:"):
                 rx = _receiver(receivers, text.removeprefix("receiver:"), "relay.sinks")
                 path = correction_port(rx.rc)
-                if path is None:
-                    sinks.append(CallbackSink(text, rx.rx.send_raw, queue_frames=cfg.queue_frames))
-                else:
-                    url = path if ("://" in path or "@" in path) else f"{path}@{rx.rc.baud}"
-                    sinks.append(open_sink(url, queue_frames=cfg.queue_frames))
+                if path is None:  # the configuration check refuses this: raw RTCM3 into a NOVATEL-mode port
+                    raise ConfigError(f"relay.sinks: {text}: no correction_device cabled to its "
+                                      f"{rx.rc.correction_port}")
+                url = path if ("://" in path or "@" in path) else f"{path}@{rx.rc.correction_baud}"
+                sinks.append(open_sink(url, queue_frames=cfg.queue_frames))
             else:
                 sinks.append(open_sink(text, queue_frames=cfg.queue_frames))
         self.relay = Relay(

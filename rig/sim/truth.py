@@ -70,7 +70,7 @@ def timing_vs_truth(ds: Session, cfg: SessionConfig) -> list[StreamTiming]:
         ok = dev != T.NO_TIME_NS
         out.append(_timing(f"can:{bus} ({fr.time_source})", fr.time_ns[ok] - dev[ok]))
     daq = cfg.daq
-    marks = [r.name for r in cfg.receivers if {_base(lr.name) for lr in r.logs} & {"MARKTIME", "MARKPOS"}]
+    marks = [r.name for r in cfg.receivers if {_base(lr.name) for lr in r.logs} & {"MARKTIME", "MARK1TIME", "MARKPOS"}]
     if daq is not None and daq.sync_channel is not None and marks and ds.leap_seconds is not None:
         d = ds.daq(daq.device, sync_channel=daq.sync_channel, receiver=marks[0])
         sim = [e for _t, e in ds.events if e.source == "sim" and "sample0_gps_ns" in e.details]

@@ -72,6 +72,7 @@ from sim_devices.gnss import (
     SolutionNoise,
     SyncSchedule,
 )
+from sim_devices.gnss.geoid import egm96_undulation_m
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from sim_devices.vehicle import Drive, GroundTruth, Scenario, VehicleParams, demo_drive, make_scenario, simulate
 from sim_devices.vsc_ecu import RUN_ON_STRETCH_S, EcuOutputs, VscEcu, VscEcuConfig, simulate_ecu
@@ -108,8 +109,6 @@ log = logging.getLogger(__name__)
 SIM_PREFIX = "sim://"
 """Port scheme of simulated receivers: ``sim://NAME`` (main port) or ``sim://NAME/COM2`` (another port)."""
 
-_UNDULATION_M = 47.9
-"""Geoid undulation the simulated receivers report (their default)."""
 
 
 class SimCanLink:
@@ -539,20 +538,24 @@ class SimWorld:
         seed = self.sim.seed * 101 + len(self.receivers) * 13
         rx: SimReceiver
         if rc.role == "base":
-            lat, lon, h_msl = rc.fix_position or (self.sim.origin_lat_deg, self.sim.origin_lon_deg,
-                                                  self.sim.origin_h_m - _UNDULATION_M)
+            # the base antenna stands where its surveyed position says (the fix is the truth here); the
+            # configuration says how to read its height, the twin's own EGM96 geoid turns MSL into ellipsoidal
+            lat, lon, h = rc.fix_position or (self.sim.origin_lat_deg, self.sim.origin_lon_deg, self.sim.origin_h_m)
+            if rc.fix_position is not None and rc.fix_height == "msl":
+                h += egm96_undulation_m(lat, lon)
             rx = SimBase(
-                name, position=(lat, lon, h_msl + _UNDULATION_M), timebase=self.timebase, clock=clock,
+                name, position=(lat, lon, h), timebase=self.timebase, clock=clock,
                 port_name=rc.command_port, link_dir=link_dir, baud=rc.baud, output_latency_s=g.output_latency_s,
-                seed=seed, undulation_m=_UNDULATION_M, error_params=self._error_params(),
+                seed=seed, error_params=self._error_params(),
             )
         else:
             arm = self.antenna_lever_arms()[rc.antenna or "a"]
+            _, cable = _sim_target(rc.correction_device) if rc.correction_device else (None, None)
             rx = SimRover(
                 name, truth=self.truth, lever_arm=arm, timebase=self.timebase, clock=clock,
-                sync=self.sync, correction_port_name=rc.correction_port, rtk=self.rtk,
+                sync=self.sync, correction_port_name=cable or rc.correction_port, rtk=self.rtk,
                 error_params=self._error_params(), port_name=rc.command_port, link_dir=link_dir, baud=rc.baud,
-                output_latency_s=g.output_latency_s, seed=seed, undulation_m=_UNDULATION_M,
+                output_latency_s=g.output_latency_s, seed=seed,
             )
         rx.start()
         self.receivers[name] = rx
@@ -593,18 +596,15 @@ class SimWorld:
         return rx.port_path
 
     def correction_port(self, receiver: ReceiverConfig) -> str | None:
-        """The device path wired to a receiver's correction port (None: use its command port)."""
+        """The device path cabled to a receiver's correction port (``correction_device``; None without one)."""
         if self._rx_host is not None:
             return self._rx_host.ports(receiver)[1]
-        if receiver.correction_device is not None:
-            if not receiver.correction_device.startswith(SIM_PREFIX):
-                return receiver.correction_device
-            rx, port = self._receiver_for(receiver.correction_device, f"receivers.{receiver.name}.correction_device")
-            return str(rx.port(port).path)
-        if receiver.role == "rover" and receiver.port.startswith(SIM_PREFIX):
-            rx, _ = self._receiver_for(receiver.port, f"receivers.{receiver.name}.port")
-            return str(rx.port(receiver.correction_port).path)
-        return None
+        if receiver.correction_device is None:  # no cable: nothing routed behind the configuration's back
+            return None
+        if not receiver.correction_device.startswith(SIM_PREFIX):
+            return receiver.correction_device
+        rx, port = self._receiver_for(receiver.correction_device, f"receivers.{receiver.name}.correction_device")
+        return str(rx.port(port).path)
 
     # --- the host's CAN adapter ------------------------------------------------------------------
 

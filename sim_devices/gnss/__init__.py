@@ -18,7 +18,8 @@ Modules: ``timebase`` (host ↔ GPS ↔ truth time, sync schedule), ``error_mode
 solution type, RTK state machine), ``antenna`` (antenna kinematics from the truth),
 ``constellation`` / ``observations`` (synthetic satellites and raw observations), ``rtcm``
 (RTCM3 encoders), ``solution`` / ``rawlogs`` / ``bodies`` (log bodies), ``commands`` (command parser), ``pty``
-(pseudo-terminal ports), ``receiver`` (the engine), ``rover`` and ``base``.
+(pseudo-terminal ports), ``geoid`` (the EGM96 undulation of a site), ``receiver`` (the engine: ports,
+interface modes, overruns, resets as on an OEM7), ``rover`` and ``base``.
 """
 
 from sim_devices.gnss.base import RTCM_LOGS, SimBase
@@ -31,7 +32,7 @@ from sim_devices.gnss.error_model import (
     RtkStateMachine,
     SolutionNoise,
 )
-from sim_devices.gnss.receiver import SimReceiver
+from sim_devices.gnss.receiver import PortSettings, SimReceiver, StartupTiming
 from sim_devices.gnss.rover import SimRover
 from sim_devices.gnss.solution import Solution
 from sim_devices.gnss.timebase import SimTimeBase, SyncSchedule
@@ -41,6 +42,7 @@ __all__ = [
     "RTCM_LOGS",
     "GnssErrorModel",
     "GnssErrorParams",
+    "PortSettings",
     "RtkParams",
     "RtkState",
     "RtkStateMachine",
@@ -50,5 +52,6 @@ __all__ = [
     "SimTimeBase",
     "Solution",
     "SolutionNoise",
+    "StartupTiming",
     "SyncSchedule",
 ]

@@ -1,9 +1,13 @@
 """Simulated NovAtel base station: a fixed antenna that sends RTCM3 corrections on its port.
 
 At power-up its saved configuration fixes its position (``FIX POSITION`` at the true antenna
-position) and logs the RTCM messages given by ``rtcm_messages`` every ``rtcm_period_s`` on its
-port, so it streams corrections without being configured; a driver that sends ``UNLOGALL`` and its
-own ``LOG … RTCM1006 ONTIME 10`` / ``FIX POSITION lat lon hgt`` commands gets what it asks for.
+position, the height above MSL under the factory EGM96 undulation of the site) and logs the RTCM
+messages given by ``rtcm_messages`` every ``rtcm_period_s`` on its port, so it streams corrections
+without being configured; a driver that sends ``UNLOGALL`` and its own ``LOG … RTCM1006 ONTIME 10``
+/ ``FIX POSITION lat lon hgt`` commands gets what it asks for, including a fixed position off the
+antenna: 25-50 m off is INTEGRITY_WARNING, worse INVALID_FIX (BESTPOS solution status), and then no
+RTCM goes out (OEM7 Commands and Logs Reference, FIX). ``RTCM1077B`` / ``RTCM1077A`` put the message
+in a NovAtel header, for a port left in NOVATEL mode.
 
 RTCM messages (log names as on an OEM7): RTCM1005, RTCM1006 (ARP from the FIX POSITION, height
 above MSL + undulation), RTCM1033, RTCM1074, RTCM1077, RTCM1084, RTCM1087 (observations of the
@@ -20,13 +24,14 @@ from pathlib import Path
 
 import pymap3d
 
-from drivers.novatel import Body
+from drivers.novatel import Body, SolutionStatus, TimeStatus
 from sim_devices.gnss.antenna import AntennaState, FixedAntenna
 from sim_devices.gnss.commands import LogFormat
 from sim_devices.gnss.constellation import Constellation, GnssSystem
 from sim_devices.gnss.error_model import GnssErrorParams
+from sim_devices.gnss.geoid import egm96_undulation_m
 from sim_devices.gnss.observations import ObservationGenerator, SignalObservation
-from sim_devices.gnss.receiver import SimReceiver
+from sim_devices.gnss.receiver import SimReceiver, StartupTiming
 from sim_devices.gnss.rtcm import (
     MsmSatellite,
     MsmSignal,
@@ -77,20 +82,27 @@ class SimBase(SimReceiver):
         rtcm_period_s: float = 1.0,
         antenna_height_m: float = 0.0,
         port_name: str = "COM1",
+        extra_ports: Sequence[str] = (),
         link_dir: Path | str | None = None,
-        baud: int = 115200,
-        output_latency_s: float = 0.02,
+        baud: int | None = 115200,
+        output_latency_s: float | None = None,
         latency_jitter_s: float = 0.002,
         startup_commands: Sequence[str] | None = None,
         seed: int = 0,
         enforce_baud: bool = False,
-        undulation_m: float = 47.9,
+        undulation_m: float | None = None,
         error_params: GnssErrorParams | None = None,
         constellation: Constellation | None = None,
+        serial_number: str | None = None,
+        lenient_corrections: bool = False,
+        startup: StartupTiming | None = None,
+        cold_start: bool = False,
     ) -> None:
         if not 0 <= station_id <= 4095:
             raise SimulationError(f"sim base {name}: station_id {station_id} out of 0..4095")
         lat, lon, h = position
+        if undulation_m is None:
+            undulation_m = egm96_undulation_m(lat, lon)
         if startup_commands is None:
             cmds = [f"FIX POSITION {lat:.11f} {lon:.11f} {h - undulation_m:.4f}"]
             for number in rtcm_messages:
@@ -103,6 +115,7 @@ class SimBase(SimReceiver):
             timebase=timebase,
             clock=clock,
             port_name=port_name,
+            extra_ports=extra_ports,
             link_dir=link_dir,
             baud=baud,
             output_latency_s=output_latency_s,
@@ -113,6 +126,10 @@ class SimBase(SimReceiver):
             undulation_m=undulation_m,
             error_params=error_params,
             constellation=constellation,
+            serial_number=serial_number,
+            lenient_corrections=lenient_corrections,
+            startup=startup,
+            cold_start=cold_start,
         )
         self.antenna = FixedAntenna(lat, lon, h)
         self.station_id = station_id
@@ -144,8 +161,10 @@ class SimBase(SimReceiver):
         if entry_name not in RTCM_LOGS:
             return self._common_message(entry_name, fmt, t_gps_ns)
         arp = self.arp_ecef()
-        if arp is None:
+        if arp is None or self.time_status_at(t_gps_ns) is not TimeStatus.FINESTEERING:
             return None
+        if self.fix_status(t_gps_ns) is not SolutionStatus.SOL_COMPUTED:
+            return None  # a fixed position the integrity monitor flags stops the corrections (FIX)
         sid = self.station_id
         if entry_name == "RTCM1005":
             return frame(encode_1005(sid, arp))

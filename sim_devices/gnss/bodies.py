@@ -13,6 +13,7 @@ from drivers.novatel import (
     BestVel,
     BestXyz,
     BodyFormat,
+    ComponentType,
     Datum,
     Heading,
     Heading2,
@@ -21,10 +22,13 @@ from drivers.novatel import (
     PsrDop,
     RawBody,
     SolutionStatus,
+    Version,
+    VersionComponent,
+    encode_version,
 )
 from sim_devices.gnss.commands import LogFormat
 from sim_devices.gnss.constellation import GnssSystem, SatObservation, dops
-from sim_devices.gnss.rawlogs import GLONASS_PRN_OFFSET, gpgga_sentence, version_ascii, version_binary
+from sim_devices.gnss.rawlogs import GLONASS_PRN_OFFSET, gpgga_sentence
 from sim_devices.gnss.solution import Solution
 from vsccore.angles import wrap_2pi
 
@@ -48,7 +52,7 @@ def bestpos(sol: Solution, undulation_m: float, cls: type[BestPos] | type[MarkPo
     tracked, used = _counts(sol)
     se, sn, su = sol.sigma_enu_m
     return cls(
-        SolutionStatus.SOL_COMPUTED,
+        sol.sol_status,
         sol.pos_type,
         sol.lat_deg,
         sol.lon_deg,
@@ -83,12 +87,16 @@ def _vel_type(sol: Solution) -> PositionType:
     return PositionType.DOPPLER_VELOCITY if sol.pos_type is PositionType.SINGLE else sol.pos_type
 
 
+def _vel_status(sol: Solution) -> SolutionStatus:
+    return SolutionStatus.INSUFFICIENT_OBS if sol.pos_type is PositionType.NONE else SolutionStatus.SOL_COMPUTED
+
+
 def bestvel(sol: Solution, latency_s: float = 0.0) -> BestVel:
     """BESTVEL: horizontal speed, track over ground (clockwise from north, 0-360°), vertical speed."""
     ve, vn, vu = sol.vel_enu_mps
     track = math.degrees(wrap_2pi(math.atan2(ve, vn)))
     return BestVel(
-        SolutionStatus.SOL_COMPUTED,
+        _vel_status(sol),
         _vel_type(sol),
         latency_s,
         sol.diff_age_s if sol.pos_type in _DIFF_TYPES else 0.0,
@@ -111,7 +119,7 @@ def bestxyz(sol: Solution) -> BestXyz:
     tracked, used = _counts(sol)
     diff = sol.pos_type in _DIFF_TYPES
     return BestXyz(
-        SolutionStatus.SOL_COMPUTED,
+        sol.sol_status,
         sol.pos_type,
         float(x),
         float(y),
@@ -119,7 +127,7 @@ def bestxyz(sol: Solution) -> BestXyz:
         float(ps[0]),
         float(ps[1]),
         float(ps[2]),
-        SolutionStatus.SOL_COMPUTED,
+        _vel_status(sol),
         _vel_type(sol),
         float(vx),
         float(vy),
@@ -168,11 +176,12 @@ def heading(
     )
 
 
-def version(fmt: LogFormat) -> RawBody:
-    """VERSION body (kept raw by the codec)."""
-    if fmt is LogFormat.BINARY:
-        return RawBody(version_binary(), BodyFormat.BINARY)
-    return RawBody(version_ascii(), BodyFormat.ASCII)
+def version(fmt: LogFormat, model: str, psn: str, versions: Sequence[str]) -> RawBody:
+    """VERSION body (kept raw by the codec) with one GPSCARD component: ``versions`` are the hardware,
+    software and boot versions, the compile date and time."""
+    hw, sw, boot, date, time = versions
+    body = Version((VersionComponent(ComponentType.GPSCARD, model, psn, hw, sw, boot, date, time),))
+    return encode_version(body, BodyFormat.BINARY if fmt is LogFormat.BINARY else BodyFormat.ASCII)
 
 
 _GGA_QUALITY = {

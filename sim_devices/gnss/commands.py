@@ -8,7 +8,10 @@ Syntax and defaults follow the OEM7 Commands and Logs reference (OEMV accepts th
 - ``UNLOG [port] message``, ``UNLOGALL [port] [held]``;
 - ``INTERFACEMODE [port] rxtype txtype [responses]``;
 - ``SERIALCONFIG [port] baud [parity [databits [stopbits [handshake [break]]]]]`` (OEMV: ``COM``);
-- ``FIX NONE | FIX AUTO | FIX POSITION lat lon hgt | FIX HEIGHT hgt``;
+- ``FIX NONE | FIX AUTO | FIX POSITION lat lon hgt | FIX HEIGHT hgt`` (height above MSL under the
+  factory undulation, ellipsoidal after ``UNDULATION USER 0``: FIX);
+- ``UNDULATION option [separation]``: EGM96 (factory), OSU89B, USER ±1000 m, and TABLE of older firmware
+  (UNDULATION);
 - ``EVENTINCONTROL mark switch [polarity [t_bias [t_guard]]]`` (OEM7) and
   ``MARKCONTROL signal switch [polarity [timebias [timeguard]]]`` (OEMV);
 - ``SAVECONFIG``, ``RESET``, ``FRESET``, ``ECUTOFF``, ``RTKTIMEOUT``, ``PSRDIFFTIMEOUT``,
@@ -38,6 +41,7 @@ __all__ = [
     "SerialConfigCommand",
     "SimpleCommand",
     "Trigger",
+    "UndulationCommand",
     "UnlogAllCommand",
     "UnlogCommand",
     "parse_command",
@@ -124,6 +128,14 @@ class FixCommand:
 
 
 @dataclass(frozen=True, slots=True)
+class UndulationCommand:
+    """``UNDULATION``: the geoid model (EGM96, OSU89B, TABLE) or USER with a separation (m)."""
+
+    option: str
+    separation_m: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
 class EventInCommand:
     """``EVENTINCONTROL``/``MARKCONTROL`` for one event input."""
 
@@ -149,6 +161,7 @@ Command = (
     | InterfaceModeCommand
     | SerialConfigCommand
     | FixCommand
+    | UndulationCommand
     | EventInCommand
     | SimpleCommand
 )
@@ -318,6 +331,16 @@ def _parse_fix(args: list[str]) -> FixCommand:
     return FixCommand(kind)
 
 
+def _parse_undulation(args: list[str]) -> UndulationCommand:
+    if not args:
+        raise ReceiverCommandError("Message Missing Field")
+    option = _choice(args[0], 2, ("USER", "OSU89B", "EGM96", "TABLE"))
+    separation = _float(args[1], 3, -1000.0, 1000.0) if len(args) > 1 else 0.0
+    if len(args) > 2:
+        raise ReceiverCommandError("Invalid Message. Field = 4")
+    return UndulationCommand(option, separation)
+
+
 def _parse_event(name: str, args: list[str]) -> EventInCommand:
     if len(args) < 2:
         raise ReceiverCommandError("Message Missing Field")
@@ -369,6 +392,8 @@ def parse_command(line: str, known_logs: Collection[str]) -> Command:
         return _parse_serialconfig(args)
     if name == "FIX":
         return _parse_fix(args)
+    if name == "UNDULATION":
+        return _parse_undulation(args)
     if name in ("EVENTINCONTROL", "MARKCONTROL"):
         return _parse_event(name, args)
     limits = _SIMPLE.get(name)

@@ -1,4 +1,4 @@
-"""Bodies of the logs the codec keeps raw (RANGECMP, VERSION) and the NMEA GPGGA sentence.
+"""Bodies of the logs the codec keeps raw (RANGECMP, RXSTATUS) and the NMEA GPGGA sentence.
 
 RANGECMP: a ulong observation count, then one 24-byte compressed record per signal, bit fields
 little-endian as in the OEM7 reference (tracking status; Doppler 28 bits at 1/256 Hz; pseudorange
@@ -16,7 +16,7 @@ from drivers.novatel.crc import xor_checksum
 from sim_devices.gnss.constellation import GnssSystem
 from sim_devices.gnss.observations import Band, SignalObservation
 
-__all__ = ["gpgga_sentence", "rangecmp_ascii", "rangecmp_binary", "version_ascii", "version_binary"]
+__all__ = ["gpgga_sentence", "rangecmp_ascii", "rangecmp_binary", "rxstatus_ascii", "rxstatus_binary"]
 
 #: NovAtel GLONASS PRNs are slot + 37 (38..61).
 GLONASS_PRN_OFFSET = 37
@@ -78,25 +78,22 @@ def rangecmp_ascii(observations: Sequence[SignalObservation]) -> bytes:
     return ",".join(parts).encode("ascii")
 
 
-_VERSION = ("GPSCARD", "FFNRNNCBN", "BMHR17090005E", "OEM7290-1.01", "OM7MR0810RN0000", "OM7BR0001RBG000",
-            "2021/Apr/27", "13:20:06")
-
-
-def version_binary(model: str = _VERSION[1], serial: str = _VERSION[2]) -> bytes:
-    """VERSION binary body with one GPSCARD component."""
-    fields = (model, serial, *_VERSION[3:6])
-    body = struct.pack("<II", 1, 1)
-    for text in fields:
-        body += text.encode("ascii")[:16].ljust(16, b"\0")
-    for text in _VERSION[6:]:
-        body += text.encode("ascii")[:12].ljust(12, b"\0")
+def rxstatus_binary(error: int, words: Sequence[int]) -> bytes:
+    """RXSTATUS binary body (RXSTATUS): the receiver error word, the number of status codes, then per code
+    (receiver status, auxiliary 1-4) the status word and its priority, event-set and event-clear masks
+    (left 0: no event reporting configured)."""
+    body = struct.pack("<II", error, len(words))
+    for w in words:
+        body += struct.pack("<IIII", w, 0, 0, 0)
     return body
 
 
-def version_ascii(model: str = _VERSION[1], serial: str = _VERSION[2]) -> bytes:
-    """VERSION ASCII body."""
-    texts = (model, serial, *_VERSION[3:])
-    return ("1,GPSCARD," + ",".join(f'"{t}"' for t in texts)).encode("ascii")
+def rxstatus_ascii(error: int, words: Sequence[int]) -> bytes:
+    """RXSTATUS ASCII body: the same fields, the words as 8 hex digits."""
+    parts = [f"{error:08x}", str(len(words))]
+    for w in words:
+        parts += [f"{w:08x}", "00000000", "00000000", "00000000"]
+    return ",".join(parts).encode("ascii")
 
 
 def _nmea_angle(value: float, deg_digits: int) -> str:

@@ -21,6 +21,25 @@ Faults for other modules' tests: :meth:`unplug` / :meth:`replug` a port (the sta
 :meth:`resume_logs`, :meth:`set_unresponsive` (commands are read and ignored). Requests from other
 threads run on the receiver's own thread, so there are no races on the file descriptors.
 
+Where the real receiver fails, the twin fails alike (OEM7 Commands and Logs Reference, the pages
+named in each place):
+
+- every receiver has the ports COM1-COM3, USB1-USB3 and ICOM1, wired to a pty or not; a COM port
+  starts at the factory 9600 N 8 1 (SERIALCONFIG) unless ``baud`` says how it was set up; USB and
+  ICOM ports have no baud rate; every port's interface mode is NOVATEL NOVATEL (INTERFACEMODE), so raw
+  RTCM3 is no correction until a port is set to RTCMV3 (or AUTO) receive; on a NOVATEL port the
+  corrections come as logs with a NovAtel header (Transmitting and receiving corrections,
+  Configuration notes);
+- a port whose logs outrun its baud rate drops them and says so in the receiver status word of every
+  header and in RXSTATUS (COM port tx buffer overrun, and the port's bit in the auxiliary words);
+- the output latency is the receiver's own, drawn per seed in 15-50 ms (MARK1TIME: "typically 20-30 ms
+  (50 ms maximum)"); the rig is never told this;
+- ``RESET`` / :meth:`reset`: silent for a moment, the saved configuration back (unsaved logs gone), the
+  time status UNKNOWN → COARSE → FINESTEERING, no RTK before FINESTEERING;
+- ``FIX POSITION`` heights are MSL under the factory ``UNDULATION EGM96`` (the EGM96 geoid of the
+  site, :mod:`sim_devices.gnss.geoid`), ellipsoidal after ``UNDULATION USER 0``; a fixed position
+  25-50 m from the antenna is INTEGRITY_WARNING, worse INVALID_FIX, and no corrections go out (FIX).
+
 Subclasses (:class:`~sim_devices.gnss.rover.SimRover`, :class:`~sim_devices.gnss.base.SimBase`)
 supply the antenna, the RTK state and the message bodies.
 """
@@ -38,9 +57,11 @@ import select
 import shutil
 import tempfile
 import threading
+import zlib
 from collections import OrderedDict, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from enum import IntFlag
 from pathlib import Path
 from typing import TypeVar
 
@@ -57,9 +78,12 @@ from drivers.novatel import (
     Message,
     PositionType,
     RawBody,
+    SolutionStatus,
     Time,
     TimeStatus,
     UTCStatus,
+    decode_ascii,
+    decode_binary,
     encode_abbreviated,
     encode_ascii,
     encode_binary,
@@ -67,6 +91,7 @@ from drivers.novatel import (
     encode_ok,
     encode_prompt,
 )
+from drivers.novatel.crc import crc24q
 from drivers.novatel.messages import LOG_IDS
 from sim_devices.gnss import bodies
 from sim_devices.gnss.antenna import AntennaState
@@ -81,20 +106,33 @@ from sim_devices.gnss.commands import (
     SerialConfigCommand,
     SimpleCommand,
     Trigger,
+    UndulationCommand,
     UnlogAllCommand,
     UnlogCommand,
     parse_command,
 )
 from sim_devices.gnss.constellation import Constellation, SatObservation, dops
 from sim_devices.gnss.error_model import GnssErrorModel, GnssErrorParams, RtkState
+from sim_devices.gnss.geodesy import EnuOrigin
+from sim_devices.gnss.geoid import egm96_undulation_m
 from sim_devices.gnss.pty import PtyPort
+from sim_devices.gnss.rawlogs import rxstatus_ascii, rxstatus_binary
 from sim_devices.gnss.solution import Solution
 from sim_devices.gnss.timebase import SimTimeBase
 from vsccore.clock import UNBOUNDED_NS, Clock, ClockGovernor, SystemClock, participant
 from vsccore.errors import DeviceError, DeviceTimeoutError, SimulationError
 from vsccore.gpstime import NS_PER_S, NS_PER_WEEK, gps_ns_to_unix_ns
 
-__all__ = ["SimReceiver", "Solution"]
+__all__ = [
+    "FACTORY_BAUD",
+    "LATENCY_RANGE_S",
+    "STANDARD_PORTS",
+    "PortSettings",
+    "ReceiverStatus",
+    "SimReceiver",
+    "Solution",
+    "StartupTiming",
+]
 
 log = logging.getLogger(__name__)
 
@@ -108,6 +146,70 @@ _MAX_LINE = 1024
 _MAX_PORT_BACKLOG_S = 1.0
 _RTCM_RX_MODES = frozenset({"RTCMV3", "AUTO"})
 _COMMAND_RX_MODES = frozenset({"NOVATEL", "AUTO", "NOVATELBINARY", "NOVATELX", "GENERIC"})
+
+STANDARD_PORTS = ("COM1", "COM2", "COM3", "USB1", "USB2", "USB3", "ICOM1")
+"""Ports every simulated receiver has (an OEM729 / PwrPak7: three COM ports, USB1-3, ICOM1), wired or not."""
+FACTORY_BAUD = 9600
+"""A COM port's factory rate (SERIALCONFIG, Factory Defaults: ``SERIALCONFIG COM1 9600 N 8 1 N ON``)."""
+_NO_BAUD_BPS = 12_000_000
+"""USB and ICOM ports have no baud rate: their bytes leave at USB full speed (no SERIALCONFIG applies)."""
+LATENCY_RANGE_S = (0.015, 0.050)
+"""Range of a receiver's own output latency (MARK1TIME: logs leave typically 20-30 ms, 50 ms at most, after
+their epoch), drawn per seed."""
+_OVERRUN_HOLD_NS = 60 * NS_PER_S
+"""How long (GPS time) a port's overrun flag stays set after its last dropped log. The OEM7 page does not
+say; older NovAtel manuals clear it five minutes after the last overrun."""
+_INTEGRITY_WARNING_M = 25.0
+_INVALID_FIX_M = 50.0
+"""FIX: "INTEGRITY_WARNING: ... off by approximately 25-50 metres; INVALID_FIX: ... off by a gross amount"."""
+_MAX_BINARY_FRAME = 16384
+
+
+class ReceiverStatus(IntFlag):
+    """Bits of the receiver status word in every log header and in RXSTATUS (RXSTATUS, Receiver Status)."""
+
+    COM_TX_BUFFER_OVERRUN = 0x0000_0100
+    POSITION_SOLUTION_INVALID = 0x0008_0000
+    POSITION_FIXED = 0x0010_0000
+
+
+#: Port → (auxiliary status word 1-3, bit) of its buffer overrun (RXSTATUS, Auxiliary 1/2 Status).
+_PORT_OVERRUN_BITS: dict[str, tuple[int, int]] = {
+    "USB1": (1, 0x100), "USB2": (1, 0x200), "USB3": (1, 0x400), "ICOM1": (1, 0x8_0000), "ICOM2": (1, 0x10_0000),
+    "ICOM3": (1, 0x20_0000), "COM4": (2, 0x4), "COM5": (2, 0x8), "COM1": (2, 0x200), "COM2": (2, 0x400),
+    "COM3": (2, 0x800),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class StartupTiming:
+    """What a receiver does after a reset (or a cold power-up), in seconds of simulated time.
+
+    Silent (no output, input lost) for ``silent_s``; the time status is UNKNOWN (header week 0, seconds
+    since the reset, no position) until ``coarse_s``, COARSE (a single-point solution, no RTK) until
+    ``finesteering_s``, then FINESTEERING (OEM7 Commands and Logs Reference, GPS Reference Time Status).
+    """
+
+    silent_s: float = 1.0
+    coarse_s: float = 2.0
+    finesteering_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.silent_s <= self.coarse_s <= self.finesteering_s:
+            raise SimulationError(f"startup timing {self}: needs 0 <= silent_s <= coarse_s <= finesteering_s")
+
+
+@dataclass(frozen=True, slots=True)
+class PortSettings:
+    """A port's settings now: baud rate (None for USB/ICOM), receive and transmit interface modes,
+    whether it answers commands, and whether a pty is wired to it."""
+
+    name: str
+    baud: int | None
+    rx_mode: str
+    tx_mode: str
+    responses: bool
+    wired: bool
 
 
 @dataclass(slots=True)
@@ -143,6 +245,22 @@ class _PortState:
     consumed: int = 0
     read_seen: bool = False
     """Someone reads this port (only then does a governed clock wait for its reader)."""
+    binary: bytearray = field(default_factory=bytearray)
+    """A binary frame (NovAtel ``AA 44 12`` or RTCM3 ``D3``) arriving on a command port, until complete."""
+    overrun_at_ns: int | None = None
+    """GPS data time of the last log this port dropped for want of baud rate (its status bit)."""
+    rtcm_ignored: int = 0
+    """Raw RTCM3 frames this port received in a mode that does not take them (NOVATEL, NONE)."""
+
+    @property
+    def serial(self) -> bool:
+        """A port with a baud rate (COM, AUX); USB and ICOM ports have none."""
+        return self.name.startswith(("COM", "AUX"))
+
+    @property
+    def rate_bps(self) -> int:
+        """Bits per second its bytes leave at (10 bits a byte on a serial port)."""
+        return self.baud if self.serial else _NO_BAUD_BPS
 
 
 _UNREAD_POLL_S = 0.0002
@@ -160,24 +278,39 @@ class SimReceiver(abc.ABC):
         timebase: host clock ↔ GPS ↔ truth time of the session.
         clock: the injected host clock (default: the system clock).
         port_name: name of the main (command) port, e.g. ``COM1`` or ``USB1``.
-        extra_ports: names of further ports wired to their own pty (a rover's correction port).
+        extra_ports: names of further ports wired to their own pty (a rover's correction port). Every
+            port of :data:`STANDARD_PORTS` exists whether wired or not.
         link_dir: directory for the stable symlinks (default: a private temporary directory,
             removed by :meth:`stop`).
-        baud: baud rate of every port at power-up (models transmission time).
-        output_latency_s, latency_jitter_s: delay from a message's data time to its first byte.
+        baud: the rate the wired COM ports were set to (and saved) before the session; None leaves
+            them at the factory 9600. Unwired COM ports are always at 9600; USB/ICOM have no rate.
+        output_latency_s: delay from a message's data time to its first byte; None (default) draws
+            the receiver's own in :data:`LATENCY_RANGE_S` from ``seed`` (the rig is never told it).
+        latency_jitter_s: uniform jitter added to it per log.
         solution_rate_hz: rate of solution epochs (ONNEW/ONCHANGED of synchronous logs).
         startup_commands: the receiver's saved configuration, applied at power-up and by RESET
             (e.g. ``("LOG COM1 RTCM1006 ONTIME 1",)``).
         seed: seed of every random draw of this receiver.
-        enforce_baud: when True, output is garbled and input ignored while the driver's port is
-            set to a baud rate other than the receiver's (for autobaud tests).
-        undulation_m: geoid − ellipsoid separation reported in position logs.
+        enforce_baud: when True, output is garbled and input ignored while the driver's side of a COM
+            port is set to a baud rate other than the receiver's (for autobaud tests; USB ignores it).
+        undulation_m: the geoid height the receiver's EGM96 table gives at its site; None (default)
+            takes it from the EGM96 grid (:func:`~sim_devices.gnss.geoid.egm96_undulation_m`).
         error_params: the position/velocity error model.
         constellation: the synthetic satellites (shared, or one per receiver).
+        serial_number: the product serial number (PSN) of VERSION; default derived from name and seed.
+        lenient_corrections: the twin's old shortcut: wired ports other than the main one start in AUTO
+            and take raw RTCM3 without an INTERFACEMODE command (no real receiver does this).
+        startup: what a reset does (:class:`StartupTiming`).
+        cold_start: run the reset sequence at :meth:`start` too (default: the receiver has long been on).
     """
 
     #: Logs whose ONNEW/ONCHANGED fire on an event instead of at every solution epoch.
-    ASYNC_LOGS: frozenset[str] = frozenset({"MARKPOS", "MARKTIME", "MARK2POS", "MARK2TIME", "VERSION"})
+    ASYNC_LOGS: frozenset[str] = frozenset(
+        {"MARKPOS", "MARKTIME", "MARK1TIME", "MARK2POS", "MARK2TIME", "VERSION"}
+    )
+    #: VERSION's GPSCARD component: model, hardware, software and boot versions, compile date and time.
+    MODEL = "FFNRNNCBN"
+    VERSIONS = ("OEM7290-1.01", "OM7MR0810RN0000", "OM7BR0001RBG000", "2021/Apr/27", "13:20:06")
 
     def __init__(
         self,
@@ -188,19 +321,26 @@ class SimReceiver(abc.ABC):
         port_name: str = "COM1",
         extra_ports: Sequence[str] = (),
         link_dir: Path | str | None = None,
-        baud: int = 115200,
-        output_latency_s: float = 0.02,
+        baud: int | None = 115200,
+        output_latency_s: float | None = None,
         latency_jitter_s: float = 0.002,
         solution_rate_hz: float = 20.0,
         startup_commands: Sequence[str] = (),
         seed: int = 0,
         enforce_baud: bool = False,
-        undulation_m: float = 47.9,
+        undulation_m: float | None = None,
         error_params: GnssErrorParams | None = None,
         constellation: Constellation | None = None,
+        serial_number: str | None = None,
+        lenient_corrections: bool = False,
+        startup: StartupTiming | None = None,
+        cold_start: bool = False,
     ) -> None:
         if not name.replace("_", "").replace("-", "").isalnum():
             raise SimulationError(f"sim receiver name {name!r} must be alphanumeric (with _ or -)")
+        if output_latency_s is None:
+            draw = np.random.default_rng(None if seed is None else (seed, 4049))
+            output_latency_s = float(draw.uniform(*LATENCY_RANGE_S))
         if not (0.0 <= output_latency_s < 1.0 and 0.0 <= latency_jitter_s < 0.5):
             raise SimulationError(f"sim receiver {name}: output latency {output_latency_s} s / jitter out of range")
         if not (0.0 < solution_rate_hz <= 100.0):
@@ -210,6 +350,8 @@ class SimReceiver(abc.ABC):
                 raise SimulationError(f"sim receiver {name}: {pname!r} is not a NovAtel port name (COM1, USB1 …)")
         if len({port_name, *extra_ports}) != 1 + len(extra_ports):
             raise SimulationError(f"sim receiver {name}: port names must differ, got {(port_name, *extra_ports)}")
+        if baud is not None and baud <= 0:
+            raise SimulationError(f"sim receiver {name}: baud {baud} must be positive")
         self.name = name
         self.timebase = timebase
         self.clock: Clock = clock if clock is not None else SystemClock()
@@ -217,20 +359,29 @@ class SimReceiver(abc.ABC):
         self.latency_jitter_s = latency_jitter_s
         self.solution_period_ns = round(NS_PER_S / solution_rate_hz)
         self.enforce_baud = enforce_baud
-        self.undulation_m = undulation_m
+        self._geoid_m = undulation_m
+        self._undulation = UndulationCommand("EGM96")
         self.startup_commands = tuple(startup_commands)
         self.constellation = constellation if constellation is not None else Constellation()
         self.error_model = GnssErrorModel(error_params, seed)
         self._rng = np.random.default_rng(None if seed is None else seed + 7919)
+        self.serial_number = serial_number if serial_number is not None else _default_psn(name, seed)
+        self.lenient_corrections = lenient_corrections
+        self.startup = startup if startup is not None else StartupTiming()
+        self.cold_start = cold_start
         self._own_dir = link_dir is None
         self.link_dir = Path(tempfile.mkdtemp(prefix=f"vsc-sim-{name}-")) if link_dir is None else Path(link_dir)
         self.main_port = port_name
+        self._wired_baud = baud
         self._ports: dict[str, _PortState] = {}
         self._governed = False
-        for pname in (port_name, *extra_ports):
-            suffix = "" if pname == port_name else f"-{pname.lower()}"
-            pty = PtyPort(pname, self.link_dir / f"{name}{suffix}")
-            self._ports[pname] = _PortState(pname, pty, baud)
+        wired = (port_name, *extra_ports)
+        for pname in (*STANDARD_PORTS, *(p for p in wired if p not in STANDARD_PORTS)):
+            pty = None
+            if pname in wired:
+                suffix = "" if pname == port_name else f"-{pname.lower()}"
+                pty = PtyPort(pname, self.link_dir / f"{name}{suffix}")
+            self._ports[pname] = _PortState(pname, pty, self._power_up_baud(pname, pty is not None))
         self._entries: dict[tuple[str, str], _LogEntry] = {}
         self._epoch_logs: bool | None = None
         """:meth:`_needs_epochs`, cached; None after any change of ``_entries``."""
@@ -259,10 +410,14 @@ class SimReceiver(abc.ABC):
         self.commands_received = 0
         self.errors_sent = 0
         self.logs_unrouted = 0
+        self.resets = 0
         self.error: BaseException | None = None
         self._leap_seconds = timebase.leap_seconds
         self._event_cursor_ns = -1
         self._last_event_ns: int | None = None
+        self._reset_at_ns: int | None = None
+        """GPS time of the last reset (None: converged since before the session)."""
+        self._rxstatus_sent: tuple[int, ...] | None = None
 
     # --- public API ---------------------------------------------------------------------------
 
@@ -287,8 +442,8 @@ class SimReceiver(abc.ABC):
         self._started = True
         try:
             for st in self._ports.values():
-                assert st.pty is not None
-                st.pty.plug()
+                if st.pty is not None:
+                    st.pty.plug()
             self._wake_r, self._wake_w = os.pipe()
             os.set_blocking(self._wake_w, False)
             now = self.gps_now_ns()
@@ -296,6 +451,8 @@ class SimReceiver(abc.ABC):
             self._next_epoch_ns = self._grid_at_or_after(now, self.solution_period_ns, 0)
             self._saved = [(self._parse_startup(c), self.main_port) for c in self.startup_commands]
             self._restore(self._saved)
+            if self.cold_start:
+                self._reset_at_ns = now
         except BaseException:
             self._close_fds()
             raise
@@ -333,12 +490,109 @@ class SimReceiver(abc.ABC):
             pty.plug()
             st = self._ports[pty.name]
             st.line.clear()
+            st.binary.clear()
             st.pending.clear()
             st.pending_bytes = 0
             st.framer = None
             return pty.device_path or ""
 
         return self._call(do)
+
+    def reset(self) -> None:
+        """Reset the receiver (the ``RESET`` command, or a power cycle): see :meth:`_do_reset`."""
+        self._call(self._do_reset)
+
+    def port_settings(self, name: str | None = None) -> PortSettings:
+        """A port's settings now (main port by default), wired to a pty or not.
+
+        Raises:
+            DeviceError: the receiver has no such port.
+        """
+
+        def do() -> PortSettings:
+            st = self._ports.get(name or self.main_port)
+            if st is None:
+                raise DeviceError(f"sim receiver {self.name}: no port {name!r} (has {sorted(self._ports)})")
+            return PortSettings(st.name, st.baud if st.serial else None, st.rx_mode, st.tx_mode, st.responses,
+                                st.pty is not None)
+
+        return self._call(do)
+
+    @property
+    def undulation_m(self) -> float:
+        """Geoid − ellipsoid separation the position logs report now: the EGM96 value of the site under the
+        factory ``UNDULATION EGM96``, the user's value after ``UNDULATION USER x`` (UNDULATION)."""
+        if self._undulation.option == "USER":
+            return self._undulation.separation_m
+        return self.geoid_m
+
+    @undulation_m.setter
+    def undulation_m(self, value: float) -> None:
+        self._geoid_m = float(value)
+
+    @property
+    def geoid_m(self) -> float:
+        """EGM96 geoid height at the receiver's site (where its antenna is at the start of the session)."""
+        if self._geoid_m is None:
+            ant = self.antenna_state(self.timebase.truth_start_gps_ns)
+            self._geoid_m = egm96_undulation_m(ant.lat_deg, ant.lon_deg)
+        return self._geoid_m
+
+    def time_status_at(self, t_gps_ns: int) -> TimeStatus:
+        """GPS reference time status at a GPS time: FINESTEERING, or the steps after a reset (StartupTiming)."""
+        reset = self._reset_at_ns
+        if reset is None:
+            return TimeStatus.FINESTEERING
+        since = t_gps_ns - reset
+        if since >= round(self.startup.finesteering_s * NS_PER_S):
+            return TimeStatus.FINESTEERING
+        if since >= round(self.startup.coarse_s * NS_PER_S):
+            return TimeStatus.COARSE
+        return TimeStatus.UNKNOWN
+
+    def silent_at(self, t_gps_ns: int) -> bool:
+        """True while the receiver is restarting after a reset: nothing goes out, input is lost."""
+        reset = self._reset_at_ns
+        return reset is not None and t_gps_ns - reset < round(self.startup.silent_s * NS_PER_S)
+
+    def status_words(self, t_gps_ns: int) -> tuple[int, int, int, int, int]:
+        """Receiver status and auxiliary status words 1-4 at a GPS time (RXSTATUS): a port that dropped
+        logs for want of baud rate in the last minute sets COM_TX_BUFFER_OVERRUN and its own bit."""
+        rx = 0
+        aux = [0, 0, 0, 0]
+        for st in self._ports.values():
+            at = st.overrun_at_ns
+            if at is not None and t_gps_ns - at < _OVERRUN_HOLD_NS:
+                rx |= ReceiverStatus.COM_TX_BUFFER_OVERRUN
+                word, bit = _PORT_OVERRUN_BITS.get(st.name, (0, 0))
+                if word:
+                    aux[word - 1] |= bit
+        fix = self._fix
+        if fix is not None and fix.kind == "POSITION":
+            rx |= ReceiverStatus.POSITION_FIXED
+            if self.fix_status(t_gps_ns) is SolutionStatus.INVALID_FIX:
+                rx |= ReceiverStatus.POSITION_SOLUTION_INVALID
+        elif self.time_status_at(t_gps_ns) is TimeStatus.UNKNOWN:
+            rx |= ReceiverStatus.POSITION_SOLUTION_INVALID
+        return int(rx), aux[0], aux[1], aux[2], aux[3]
+
+    def fix_status(self, t_gps_ns: int) -> SolutionStatus:
+        """The integrity monitor's verdict on a ``FIX POSITION`` (FIX): SOL_COMPUTED when the fixed
+        position (its height taken with the current undulation) is within 25 m of the antenna,
+        INTEGRITY_WARNING up to 50 m, INVALID_FIX beyond; SOL_COMPUTED when nothing is fixed."""
+        fix = self._fix
+        if fix is None or fix.kind != "POSITION":
+            return SolutionStatus.SOL_COMPUTED
+        lat, lon, hgt = fix.values
+        ant = self.antenna_state(t_gps_ns)
+        off = EnuOrigin(ant.lat_deg, ant.lon_deg, ant.height_m).to_ecef(0.0, 0.0, 0.0)
+        fixed = EnuOrigin(lat, lon, hgt + self.undulation_m).to_ecef(0.0, 0.0, 0.0)
+        d = math.dist(off, fixed)
+        if d > _INVALID_FIX_M:
+            return SolutionStatus.INVALID_FIX
+        if d > _INTEGRITY_WARNING_M:
+            return SolutionStatus.INTEGRITY_WARNING
+        return SolutionStatus.SOL_COMPUTED
 
     def inject(self, data: bytes, port: str | None = None) -> None:
         """Write raw bytes (garbage, truncated frames …) to a port now."""
@@ -360,6 +614,10 @@ class SimReceiver(abc.ABC):
         """Bytes of logs dropped because the port's baud rate could not carry them."""
         return self._ports[port or self.main_port].bytes_overrun
 
+    def rtcm_ignored(self, port: str | None = None) -> int:
+        """Raw RTCM3 frames a port received in a receive mode that does not take them (NOVATEL)."""
+        return self._ports[port or self.main_port].rtcm_ignored
+
     def bytes_lost(self) -> dict[str, int]:
         """Bytes written to each port (by name) that its pty could not take while a reader had it
         open: the reader was behind and they are lost (:attr:`PtyPort.bytes_lost`). Readable from any
@@ -378,7 +636,7 @@ class SimReceiver(abc.ABC):
 
     def known_logs(self) -> frozenset[str]:
         """Log names the LOG command accepts."""
-        return frozenset({"BESTPOS", "BESTVEL", "BESTXYZ", "TIME", "PSRDOP", "VERSION", "GPGGA"})
+        return frozenset({"BESTPOS", "BESTVEL", "BESTXYZ", "TIME", "PSRDOP", "VERSION", "GPGGA", "RXSTATUS"})
 
     @abc.abstractmethod
     def antenna_state(self, t_gps_ns: int) -> AntennaState:
@@ -407,6 +665,9 @@ class SimReceiver(abc.ABC):
 
     def on_correction_frame(self, raw: bytes, rx_gps_ns: int) -> None:  # noqa: B027 - optional hook
         """A CRC-valid RTCM3 frame arrived on a port that accepts corrections (a base ignores them)."""
+
+    def on_reset(self) -> None:  # noqa: B027 - optional hook
+        """The receiver was reset: forget what a power cycle forgets (the RTK state …)."""
 
     def apply_simple(self, cmd: SimpleCommand) -> None:
         """Apply a simple configuration command (ECUTOFF …)."""
@@ -443,14 +704,22 @@ class SimReceiver(abc.ABC):
         sats = self.geometry(t_gps_ns, ant)
         in_soln = sum(1 for s in sats if s.elevation_deg >= self._ecutoff_deg)
         fix = self._fix
-        if fix is not None and fix.kind == "POSITION":
+        time_status = self.time_status_at(t_gps_ns)
+        if time_status is TimeStatus.UNKNOWN:  # restarting: no position yet
+            sol = Solution(
+                t_gps_ns, PositionType.NONE, 0.0, 0.0, 0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0,
+                "", sats, 0, ant, SolutionStatus.INSUFFICIENT_OBS,
+            )
+        elif fix is not None and fix.kind == "POSITION":
             lat, lon, hgt = fix.values
             sol = Solution(
                 t_gps_ns, PositionType.FIXEDPOS, lat, lon, hgt + self.undulation_m, (0.0, 0.0, 0.0),
-                (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, "", sats, in_soln, ant,
+                (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, "", sats, in_soln, ant, self.fix_status(t_gps_ns),
             )
         else:
             rtk = self.rtk_state(t_gps_ns)
+            if time_status is not TimeStatus.FINESTEERING:  # no RTK (nor differential) before fine time
+                rtk = RtkState(PositionType.SINGLE, 0.0, "")
             err = self.error_model.sample(t_gps_ns, rtk.pos_type)
             de, dn, du = (float(v) for v in err.position_enu_m)
             lat, lon, h = _offset_geodetic(ant.lat_deg, ant.lon_deg, ant.height_m, de, dn, du)
@@ -492,7 +761,16 @@ class SimReceiver(abc.ABC):
         if name == "TIME":
             return self._time_body(t_ns)
         if name == "VERSION":
-            return bodies.version(fmt)
+            return bodies.version(fmt, self.MODEL, self.serial_number, self.VERSIONS)
+        if name == "RXSTATUS":
+            words = self.status_words(t_ns)
+            if self.emitting_on_change:  # ONCHANGED: only when a word changed
+                if words == self._rxstatus_sent:
+                    return None
+                self._rxstatus_sent = words
+            if fmt is LogFormat.BINARY:
+                return RawBody(rxstatus_binary(0, words), BodyFormat.BINARY)
+            return RawBody(rxstatus_ascii(0, words), BodyFormat.ASCII)
         if name == "GPGGA":
             sol = self.solution(t_ns)
             unix = gps_ns_to_unix_ns(t_ns, self._leap_seconds)
@@ -507,9 +785,13 @@ class SimReceiver(abc.ABC):
         utc = dt.datetime.fromtimestamp(unix // NS_PER_S, tz=dt.UTC)
         ms = utc.second * 1000 + (unix % NS_PER_S) // 1_000_000
         offset = float(self._rng.normal(0.0, 2e-10))
+        status = self.time_status_at(t_ns)
+        fine = status is TimeStatus.FINESTEERING
+        clock = ClockModelStatus.VALID if fine else (
+            ClockModelStatus.CONVERGING if status is TimeStatus.COARSE else ClockModelStatus.INVALID)
         return Time(
-            ClockModelStatus.VALID, offset, 1.0e-9, -float(self._leap_seconds), utc.year, utc.month, utc.day,
-            utc.hour, utc.minute, int(ms), UTCStatus.VALID,
+            clock, offset, 1.0e-9, -float(self._leap_seconds), utc.year, utc.month, utc.day,
+            utc.hour, utc.minute, int(ms), UTCStatus.VALID if fine else UTCStatus.INVALID,
         )
 
     # --- command handling ------------------------------------------------------------------------
@@ -532,6 +814,8 @@ class SimReceiver(abc.ABC):
         if text is not None and not text.strip():
             self._reply(st, None)
             return
+        if text is not None and text.startswith("#RTCM") and self._on_wrapped_ascii(text):
+            return  # an RTCM log with a NovAtel ASCII header: a correction, not a command
         self.commands_received += 1
         if text is None or not text.isprintable():
             self._reply(st, "Invalid Message ID")
@@ -545,9 +829,12 @@ class SimReceiver(abc.ABC):
             return
         self._reply(st, "")
         if isinstance(cmd, SerialConfigCommand):  # the new rate applies after the response
-            target = self._ports.get(self._resolve_port(cmd.port, st.name))
-            if target is not None:
-                target.baud = cmd.baud
+            self._set_baud(cmd, st.name)
+
+    def _set_baud(self, cmd: SerialConfigCommand, this_port: str) -> None:
+        target = self._ports.get(self._resolve_port(cmd.port, this_port))
+        if target is not None:
+            target.baud = cmd.baud  # kept on a USB/ICOM port too, where it changes nothing
 
     def _reply(self, st: _PortState, error: str | None) -> None:
         """``error`` "" → ``<OK``; text → ``<ERROR:text``; None → prompt only."""
@@ -588,38 +875,73 @@ class SimReceiver(abc.ABC):
         elif isinstance(cmd, FixCommand):
             self._fix = None if cmd.kind in ("NONE", "AUTO") else cmd
             self._solutions.clear()
+        elif isinstance(cmd, UndulationCommand):
+            self._undulation = cmd
+            self._solutions.clear()
         elif isinstance(cmd, EventInCommand):
             self._events[cmd.mark] = cmd
+        elif isinstance(cmd, SerialConfigCommand):
+            if not record:  # restoring saved settings: no response to wait for
+                self._set_baud(cmd, this_port)
         elif isinstance(cmd, SimpleCommand):
             if cmd.name == "SAVECONFIG":
                 self._saved = list(self._config)
                 return
-            if cmd.name in ("RESET", "FRESET"):
-                self._restore([] if cmd.name == "FRESET" else self._saved, factory=cmd.name == "FRESET")
+            if cmd.name == "RESET":
+                self._do_reset()
+                return
+            if cmd.name == "FRESET":
+                self._saved = []
+                self._do_reset(factory=True)
                 return
             self.apply_simple(cmd)
-        if record and not isinstance(cmd, SerialConfigCommand):
+        if record:
             self._config.append((cmd, this_port))
 
     def _restore(self, config: Sequence[tuple[Command, str]], factory: bool = False) -> None:
+        """Back to the factory settings (and the ports as installed, unless ``factory``), then ``config``."""
         self._entries.clear()
         self._epoch_logs = None
         self._once.clear()
         self._fix = None
+        self._undulation = UndulationCommand("EGM96")
         self._events = {"MARK1": EventInCommand("MARK1", True)}
         self._ecutoff_deg = 5.0
         self._config = []
-        if factory:
-            self._saved = []
+        self._solutions.clear()
         for st in self._ports.values():
-            st.rx_mode = "NOVATEL" if st.name == self.main_port else "AUTO"
+            # INTERFACEMODE factory default: NOVATEL NOVATEL ON on every port (the lenient twin of old took
+            # raw RTCM3 on every wired port but the main one)
+            lenient = self.lenient_corrections and st.pty is not None and st.name != self.main_port
+            st.rx_mode = "AUTO" if lenient else "NOVATEL"
             st.tx_mode = "NOVATEL"
             st.responses = True
+            st.baud = FACTORY_BAUD if factory else self._power_up_baud(st.name, st.pty is not None)
         for cmd, port in config:
+            if isinstance(cmd, SimpleCommand) and cmd.name in ("RESET", "FRESET", "SAVECONFIG"):
+                continue
             try:
-                self._apply(cmd, port)
+                self._apply(cmd, port, record=False)
             except ReceiverCommandError as exc:
                 log.warning("sim receiver %s: saved command %s rejected: %s", self.name, cmd, exc.reason)
+            self._config.append((cmd, port))
+
+    def _do_reset(self, factory: bool = False) -> None:
+        """RESET (FRESET with ``factory``): output buffers flushed, the saved configuration back (logs not
+        saved with SAVECONFIG are gone), the RTK state lost; silent for a moment, then the time status runs
+        UNKNOWN → COARSE → FINESTEERING (:class:`StartupTiming`)."""
+        self.resets += 1
+        self._reset_at_ns = self.gps_now_ns()
+        for st in self._ports.values():
+            st.pending.clear()
+            st.pending_bytes = 0
+            st.line.clear()
+            st.binary.clear()
+            st.framer = None
+            st.overrun_at_ns = None
+        self._rxstatus_sent = None
+        self._restore(self._saved, factory=factory)
+        self.on_reset()
 
     def _add_log(self, cmd: LogCommand, this_port: str) -> None:
         port = self._resolve_port(cmd.port, this_port)
@@ -724,42 +1046,78 @@ class SimReceiver(abc.ABC):
             self._emit(e, t_ns, names)
 
     def _emit(self, entry: _LogEntry, t_ns: int, batch: Sequence[str]) -> None:
+        if self.silent_at(t_ns):
+            return  # restarting after a reset: nothing goes out
         self.emitting_on_change = entry.trigger in (Trigger.ONNEW, Trigger.ONCHANGED)
         body = self.message(entry.name, entry.fmt, t_ns, batch)
         if body is None or self._logs_paused:
             return
         st = self._ports.get(entry.port)
-        if st is None or st.pty is None:  # a port with nothing wired to it swallows its output
+        if st is None:  # a port this receiver does not have: its logs go nowhere
             self.logs_unrouted += 1
             return
         if isinstance(body, bytes):
-            data = body
+            data = body if entry.fmt is LogFormat.ABBREVIATED or not entry.name.startswith("RTCM") else (
+                self._wrap_rtcm(entry, body, t_ns))
         elif isinstance(body, list):  # one log per satellite (ephemerides)
             data = b"".join(self._encode(entry, b, t_ns) for b in body)
             if not data:
                 return
         else:
             data = self._encode(entry, body, t_ns)
-        backlog_s = (st.pending_bytes + len(data)) * 10 / st.baud
+        rate = st.rate_bps
+        if st.pty is None:
+            # no cable: the port sends all the same (and overruns at its rate); the bytes go nowhere
+            self.logs_unrouted += 1
+            ready = self.timebase.clock_ns(t_ns) + round(self.output_latency_s * NS_PER_S)
+            begin = max(ready, st.free_at_ns)
+            busy = len(data) * 10 * NS_PER_S // rate
+            if begin - ready + busy > _MAX_PORT_BACKLOG_S * NS_PER_S:
+                self._overrun(st, t_ns, len(data))
+            else:
+                st.free_at_ns = begin + busy
+            return
+        backlog_s = (st.pending_bytes + len(data)) * 10 / rate
         if backlog_s > _MAX_PORT_BACKLOG_S:  # more logged than the baud rate carries: the port overruns
-            st.bytes_overrun += len(data)
+            self._overrun(st, t_ns, len(data))
             return
         jitter = float(self._rng.uniform(0.0, self.latency_jitter_s)) if self.latency_jitter_s > 0 else 0.0
         ready = self.timebase.clock_ns(t_ns) + round((self.output_latency_s + jitter) * NS_PER_S)
         st.pending.append((ready, data))
         st.pending_bytes += len(data)
 
+    def _overrun(self, st: _PortState, t_ns: int, n: int) -> None:
+        """A log the port's buffer cannot take is dropped whole and flagged in the status words (RXSTATUS)."""
+        st.bytes_overrun += n
+        st.overrun_at_ns = t_ns
+
+    def _wrap_rtcm(self, entry: _LogEntry, frame: bytes, t_ns: int) -> bytes:
+        """``RTCMnnnnB`` / ``RTCMnnnnA``: the RTCM3 message with a NovAtel header, for a NOVATEL port
+        (Transmitting and receiving corrections, Configuration notes); the ASCII body is the message in hex.
+
+        The message IDs of these logs are not in the codec's table (not verified against the reference),
+        so the binary header carries ID 0; a receiver takes such a log by its body (:meth:`_on_wrapped_binary`).
+        """
+        if entry.fmt is LogFormat.BINARY:
+            return self._encode(entry, RawBody(frame, BodyFormat.BINARY), t_ns)
+        return self._encode(entry, RawBody(frame.hex().upper().encode("ascii"), BodyFormat.ASCII), t_ns)
+
     def _encode(self, entry: _LogEntry, body: Message | RawBody, t_ns: int) -> bytes:
+        status = self.time_status_at(t_ns)
+        if status is TimeStatus.UNKNOWN:  # no GPS time yet: week 0, seconds since the reset
+            week, seconds = 0, (t_ns - (self._reset_at_ns or t_ns)) / NS_PER_S
+        else:
+            week, seconds = t_ns // NS_PER_WEEK, (t_ns % NS_PER_WEEK) / NS_PER_S
         header = Header(
             message_name=entry.name,
             message_id=LOG_IDS.get(entry.name, 0),
             port=entry.port,
             sequence=0,
             idle_time_pct=80.0,
-            time_status=TimeStatus.FINESTEERING,
-            week=t_ns // NS_PER_WEEK,
-            seconds=(t_ns % NS_PER_WEEK) / NS_PER_S,
-            receiver_status=0,
+            time_status=status,
+            week=week,
+            seconds=seconds,
+            receiver_status=self.status_words(t_ns)[0],
             reserved=0xB1F6,
             sw_version=16809,
         )
@@ -780,7 +1138,7 @@ class SimReceiver(abc.ABC):
         pty = st.pty
         if pty is None or not data:
             return
-        if self.enforce_baud:
+        if self.enforce_baud and st.serial:
             actual = pty.slave_baud()
             if actual is not None and actual != st.baud:
                 data = bytes(b ^ 0xA5 for b in data[: max(1, len(data) * actual // max(st.baud, 1))])
@@ -793,7 +1151,7 @@ class SimReceiver(abc.ABC):
             while st.pending:
                 ready, data = st.pending[0]
                 start = max(ready, st.free_at_ns)
-                done = start + len(data) * 10 * NS_PER_S // st.baud
+                done = start + len(data) * 10 * NS_PER_S // st.rate_bps
                 if done > now_ns:
                     nxt = done if nxt is None else min(nxt, done)
                     break
@@ -927,18 +1285,29 @@ class SimReceiver(abc.ABC):
             slept = True
 
     def _on_input(self, st: _PortState, data: bytes) -> None:
-        if self.enforce_baud and st.pty is not None:
+        if self.silent_at(self.gps_now_ns()):
+            return  # restarting: what arrives now is lost
+        if self.enforce_baud and st.serial and st.pty is not None:
             actual = st.pty.slave_baud()
             if actual is not None and actual != st.baud:
                 return
-        # AUTO on the command port means commands; on any other port it means corrections.
-        if (st.rx_mode in _RTCM_RX_MODES and st.name != self.main_port) or st.rx_mode == "RTCMV3":
+        mode = st.rx_mode
+        if self.lenient_corrections:
+            # the old shortcut: AUTO on the command port means commands; on any other port, corrections
+            if (mode in _RTCM_RX_MODES and st.name != self.main_port) or mode == "RTCMV3":
+                self._on_rtcm_bytes(st, data)
+                return
+        elif mode == "RTCMV3":
             self._on_rtcm_bytes(st, data)
             return
-        if st.rx_mode not in _COMMAND_RX_MODES:
-            return
+        if mode not in _COMMAND_RX_MODES:
+            return  # NONE (and modes the twin does not decode): the port interprets nothing (INTERFACEMODE)
+        raw_rtcm = mode == "AUTO" and not self.lenient_corrections
         for byte in data:
-            if byte in (0x0D, 0x0A):
+            if st.binary or (not st.line and byte in (0xAA, 0xD3)):
+                st.binary.append(byte)
+                self._binary_byte(st, raw_rtcm)
+            elif byte in (0x0D, 0x0A):
                 if byte == 0x0A and st.last_cr:
                     st.last_cr = False
                     continue
@@ -950,6 +1319,65 @@ class SimReceiver(abc.ABC):
                 st.last_cr = False
                 if len(st.line) < _MAX_LINE:
                     st.line.append(byte)
+
+    def _binary_byte(self, st: _PortState, raw_rtcm: bool) -> None:
+        """One more byte of a binary frame on a command port: a NovAtel binary log or command
+        (``AA 44 12``/``13``) or an RTCM3 frame (``D3``); a frame that cannot be one is dropped."""
+        buf = st.binary
+        n = len(buf)
+        if buf[0] == 0xD3:
+            if n == 2 and buf[1] & 0xFC:
+                buf.clear()
+                return
+            if n < 3 or n < 6 + ((buf[1] & 0x03) << 8 | buf[2]):
+                return
+            frame = bytes(buf)
+            buf.clear()
+            if crc24q(frame[:-3]) != int.from_bytes(frame[-3:], "big"):
+                return
+            if raw_rtcm:  # AUTO receive: raw RTCM3 is taken as corrections
+                self.on_correction_frame(frame, self.gps_now_ns())
+            else:  # NOVATEL receive: raw RTCM3 is not a command and no correction (INTERFACEMODE)
+                st.rtcm_ignored += 1
+            return
+        if (n == 2 and buf[1] != 0x44) or (n == 3 and buf[2] not in (0x12, 0x13)):
+            buf.clear()
+            return
+        if n < 10:
+            return
+        total = 12 + buf[3] + 4 if buf[2] == 0x13 else buf[3] + (buf[8] | buf[9] << 8) + 4
+        if total > _MAX_BINARY_FRAME:
+            buf.clear()
+            return
+        if n < total:
+            return
+        frame = bytes(buf)
+        buf.clear()
+        if frame[2] == 0x12:  # a long-header log (short-header binary commands are not simulated)
+            self._on_wrapped_binary(frame)
+
+    def _on_wrapped_binary(self, frame: bytes) -> None:
+        """A NovAtel binary log on a NOVATEL port: one whose body is an RTCM3 message (``RTCM1077B`` …)
+        is a correction (Transmitting and receiving corrections, Configuration notes: "the rover
+        ... uses the corrections it receives with a NovAtel header"); anything else is not simulated."""
+        try:
+            body = decode_binary(frame).body
+        except ValueError:  # DecodeError: a bad CRC or a malformed header
+            return
+        if isinstance(body, RawBody) and _is_rtcm_frame(body.data):
+            self.on_correction_frame(body.data, self.gps_now_ns())
+
+    def _on_wrapped_ascii(self, text: str) -> bool:
+        """``#RTCMnnnnA,…;<hex of the RTCM3 message>*crc``: True when it was a valid wrapped correction."""
+        try:
+            body = decode_ascii(text).body
+            data = bytes.fromhex(body.data.decode("ascii")) if isinstance(body, RawBody) else b""
+        except ValueError:
+            return False
+        if not _is_rtcm_frame(data):
+            return False
+        self.on_correction_frame(data, self.gps_now_ns())
+        return True
 
     def _on_rtcm_bytes(self, st: _PortState, data: bytes) -> None:
         if st.framer is None:
@@ -995,8 +1423,13 @@ class SimReceiver(abc.ABC):
     def _pty(self, name: str) -> PtyPort:
         st = self._ports.get(name)
         if st is None or st.pty is None:
-            raise DeviceError(f"sim receiver {self.name}: no port {name!r} (has {sorted(self._ports)})")
+            wired = sorted(n for n, p in self._ports.items() if p.pty is not None)
+            raise DeviceError(f"sim receiver {self.name}: no port {name!r} wired to a pty (wired: {wired})")
         return st.pty
+
+    def _power_up_baud(self, name: str, wired: bool) -> int:
+        """A port's rate at power-up: the installer's saved ``baud`` on a wired port, else the factory 9600."""
+        return self._wired_baud if wired and self._wired_baud is not None else FACTORY_BAUD
 
     def _close_fds(self) -> None:
         for st in self._ports.values():
@@ -1009,6 +1442,19 @@ class SimReceiver(abc.ABC):
         self._wake_r = self._wake_w = None
         if self._own_dir:
             shutil.rmtree(self.link_dir, ignore_errors=True)
+
+
+def _is_rtcm_frame(data: bytes) -> bool:
+    """One whole CRC-valid RTCM3 transport frame (preamble, 10-bit length, message, CRC-24Q)."""
+    return (len(data) >= 6 and data[0] == 0xD3 and not data[1] & 0xFC
+            and len(data) == 6 + ((data[1] & 0x03) << 8 | data[2])
+            and crc24q(data[:-3]) == int.from_bytes(data[-3:], "big"))
+
+
+def _default_psn(name: str, seed: int | None) -> str:
+    """A product serial number in NovAtel's form (``BMHR17090005E``), the same for the same name and seed."""
+    h = zlib.crc32(f"{name}/{seed}".encode())
+    return f"BMHR{15 + h % 9:02d}{(h >> 4) % 1_000_000:06d}E"
 
 
 _HEADER_PORTS = frozenset(

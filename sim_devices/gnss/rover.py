@@ -1,18 +1,21 @@
 """Simulated NovAtel rover: a roof antenna on the simulated car, RTK from the corrections it receives.
 
 Ports: the command/log port (``port_name``, default COM1, at :attr:`SimRover.port_path`) and the
-correction input (``correction_port_name``, default COM2, at :attr:`SimRover.correction_port_path`).
-RTCM3 frames arriving on the correction port (framed and CRC-checked by the codec's
-:class:`~drivers.novatel.Framer`) feed the :class:`~sim_devices.gnss.error_model.RtkStateMachine`,
-which sets the solution type of every position log; a frame whose CRC fails never counts.
+correction input (``correction_port_name``, default COM2, at :attr:`SimRover.correction_port_path`),
+wired to ptys. Raw RTCM3 counts as corrections only on a port set to RTCMV3 (or AUTO) receive by
+``INTERFACEMODE``, as on an OEM7 (the factory NOVATEL mode takes them only with a NovAtel header,
+``RTCM1077B``; ``lenient_corrections=True`` brings back the old shortcut). The frames, CRC-checked,
+feed the :class:`~sim_devices.gnss.error_model.RtkStateMachine`, which sets the solution type of
+every position log; a frame whose CRC fails never counts.
 
-Logs: BESTPOS, BESTVEL, BESTXYZ, TIME, PSRDOP, MARKPOS, MARKTIME (MARK1 events at the
+Logs: BESTPOS, BESTVEL, BESTXYZ, TIME, PSRDOP, RXSTATUS, MARKPOS, MARK1TIME and the deprecated
+MARKTIME (MARK1 events at the
 :class:`~sim_devices.gnss.timebase.SyncSchedule`'s pulse times plus the EVENTINCONTROL time bias;
 MARK2POS/MARK2TIME accepted, never fired), RANGECMP (raw observations,
 :mod:`sim_devices.gnss.observations`), GPSEPHEM (one log per visible GPS satellite; ONCHANGED
 sends a satellite's set when it is new to the receiver or its IODE changed, other triggers send all;
 :mod:`sim_devices.gnss.ephemeris`), GLOEPHEMERIS (the same per visible GLONASS satellite, a new set
-every 30 minutes), VERSION (raw), GPGGA, and with a secondary antenna (a
+every 30 minutes), VERSION (its own PSN), GPGGA, and with a secondary antenna (a
 dual-antenna receiver) HEADING and HEADING2.
 """
 
@@ -23,7 +26,17 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from drivers.novatel import Body, BodyFormat, ClockModelStatus, Heading, Heading2, MarkTime, RawBody
+from drivers.novatel import (
+    Body,
+    BodyFormat,
+    ClockModelStatus,
+    Heading,
+    Heading2,
+    Mark1Time,
+    MarkTime,
+    RawBody,
+    TimeStatus,
+)
 from drivers.novatel.rawobs import encode_gloephemeris, encode_gpsephem
 from sim_devices.gnss import bodies
 from sim_devices.gnss.antenna import AntennaState, TruthAntenna
@@ -34,7 +47,7 @@ from sim_devices.gnss.error_model import GnssErrorParams, RtkParams, RtkState, R
 from sim_devices.gnss.glonass import GlonassTruth
 from sim_devices.gnss.observations import ObservationGenerator
 from sim_devices.gnss.rawlogs import rangecmp_ascii, rangecmp_binary
-from sim_devices.gnss.receiver import SimReceiver
+from sim_devices.gnss.receiver import SimReceiver, StartupTiming
 from sim_devices.gnss.rtcm import (
     frame_gps_epoch_ms,
     frame_message_number,
@@ -66,8 +79,9 @@ class SimRover(SimReceiver):
         rtk: RTK timing; error_params: noise by solution type.
         heading_sigma_deg_at_1m: heading 1σ for a 1 m baseline (scales as 1/length).
         velocity_latency_s: BESTVEL latency field; the velocity is taken that long before the log time.
-        Other keyword arguments go to :class:`SimReceiver` (port_name, link_dir, baud,
-        output_latency_s, solution_rate_hz, startup_commands, seed, undulation_m, …).
+        Other keyword arguments go to :class:`SimReceiver` (port_name, extra_ports, link_dir, baud,
+        output_latency_s, solution_rate_hz, startup_commands, seed, undulation_m, serial_number,
+        lenient_corrections, startup, cold_start, …).
     """
 
     def __init__(
@@ -86,16 +100,21 @@ class SimRover(SimReceiver):
         heading_sigma_deg_at_1m: float = 0.16,
         velocity_latency_s: float = 0.0,
         port_name: str = "COM1",
+        extra_ports: Sequence[str] = (),
         link_dir: Path | str | None = None,
-        baud: int = 115200,
-        output_latency_s: float = 0.02,
+        baud: int | None = 115200,
+        output_latency_s: float | None = None,
         latency_jitter_s: float = 0.002,
         solution_rate_hz: float = 20.0,
         startup_commands: Sequence[str] = (),
         seed: int = 0,
         enforce_baud: bool = False,
-        undulation_m: float = 47.9,
+        undulation_m: float | None = None,
         constellation: Constellation | None = None,
+        serial_number: str | None = None,
+        lenient_corrections: bool = False,
+        startup: StartupTiming | None = None,
+        cold_start: bool = False,
     ) -> None:
         if correction_port_name == port_name:
             raise SimulationError(f"sim rover {name}: correction port must differ from {port_name}")
@@ -104,7 +123,7 @@ class SimRover(SimReceiver):
             timebase=timebase,
             clock=clock,
             port_name=port_name,
-            extra_ports=(correction_port_name,),
+            extra_ports=(correction_port_name, *extra_ports),
             link_dir=link_dir,
             baud=baud,
             output_latency_s=output_latency_s,
@@ -116,7 +135,12 @@ class SimRover(SimReceiver):
             undulation_m=undulation_m,
             error_params=error_params,
             constellation=constellation,
+            serial_number=serial_number,
+            lenient_corrections=lenient_corrections,
+            startup=startup,
+            cold_start=cold_start,
         )
+        self._rtk_params = rtk
         self.truth = truth
         self.antenna = TruthAntenna(truth, lever_arm)
         self.secondary = TruthAntenna(truth, secondary_lever_arm) if secondary_lever_arm is not None else None
@@ -140,8 +164,8 @@ class SimRover(SimReceiver):
     # --- hooks ----------------------------------------------------------------------------------
 
     def known_logs(self) -> frozenset[str]:
-        names = set(super().known_logs()) | {"MARKPOS", "MARKTIME", "MARK2POS", "MARK2TIME", "RANGECMP", "GPSEPHEM",
-                                                "GLOEPHEMERIS"}
+        names = set(super().known_logs()) | {"MARKPOS", "MARKTIME", "MARK1TIME", "MARK2POS", "MARK2TIME", "RANGECMP",
+                                                "GPSEPHEM", "GLOEPHEMERIS"}
         if self.secondary is not None:
             names |= {"HEADING", "HEADING2"}
         return frozenset(names)
@@ -160,6 +184,12 @@ class SimRover(SimReceiver):
             self.rtk.params = RtkParams(
                 age, max(age, p.float_hold_s), max(age, p.psrdiff_timeout_s), p.time_to_float_s, p.time_to_fix_s
             )
+
+    def on_reset(self) -> None:
+        """A reset loses the RTK state and the ephemerides sent (the corrections must come in again)."""
+        self.rtk = RtkStateMachine(self._rtk_params)
+        self._ephemeris_sent.clear()
+        self._glo_ephemeris_sent.clear()
 
     def on_correction_frame(self, raw: bytes, rx_gps_ns: int) -> None:
         number = frame_message_number(raw)
@@ -186,22 +216,21 @@ class SimRover(SimReceiver):
     def on_event(self, t_gps_ns: int) -> list[str]:
         self._mark_time_ns = t_gps_ns
         self._last_mark_accepted = t_gps_ns
-        return ["MARKPOS", "MARKTIME"]
+        return ["MARKPOS", "MARKTIME", "MARK1TIME"]
 
     def message(
         self, entry_name: str, fmt: LogFormat, t_gps_ns: int, batch: Sequence[str]
     ) -> Body | bytes | list[Body] | None:
         if entry_name == "BESTVEL" and self.velocity_latency_s > 0.0:
             return bodies.bestvel(self._delayed(t_gps_ns), self.velocity_latency_s)
-        if entry_name == "MARKPOS":
-            if self._mark_time_ns is None:
-                return None
-            return bodies.markpos(self.solution(self._mark_time_ns), self.undulation_m)
-        if entry_name == "MARKTIME":
+        if entry_name in ("MARKPOS", "MARKTIME", "MARK1TIME"):
             t = self._mark_time_ns
-            if t is None:
-                return None
-            return MarkTime(
+            if t is None or self.time_status_at(t) is TimeStatus.UNKNOWN:
+                return None  # no mark time nor position before the receiver knows the time
+            if entry_name == "MARKPOS":
+                return bodies.markpos(self.solution(t), self.undulation_m)
+            cls = MarkTime if entry_name == "MARKTIME" else Mark1Time  # MARKTIME (231) is deprecated (MARK1TIME)
+            return cls(
                 t // NS_PER_WEEK, (t % NS_PER_WEEK) / NS_PER_S, 0.0, 1.0e-9, -float(self._leap_seconds),
                 ClockModelStatus.VALID,
             )

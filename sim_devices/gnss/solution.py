@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from drivers.novatel import PositionType
+from drivers.novatel import PositionType, SolutionStatus
 from sim_devices.gnss.antenna import AntennaState
 from sim_devices.gnss.constellation import SatObservation
 
@@ -28,3 +28,5 @@ class Solution:
     satellites: tuple[SatObservation, ...]
     num_soln_svs: int
     truth: AntennaState
+    sol_status: SolutionStatus = SolutionStatus.SOL_COMPUTED
+    """INSUFFICIENT_OBS while restarting; the integrity monitor's verdict on a fixed position."""

@@ -75,13 +75,16 @@ def test_standard_configuration_order_for_a_base() -> None:
     )
     assert commands == (
         "UNLOGALL",
-        "SERIALCONFIG COM2 57600 N 8 1 N ON",
+        "SERIALCONFIG COM2 57600 N 8 1 N OFF",
         "INTERFACEMODE COM2 NONE RTCMV3 ON",
+        "UNDULATION USER 0.0",  # the height is ellipsoidal (the default), sent before FIX reads it
         "FIX POSITION 51.0000000000 -114.0000000000 1000.0000",
         "LOG COM1 BESTPOSB ONTIME 1",
         "LOG COM1 RTCM1005B ONTIME 10",
         "SAVECONFIG",
     )
+    msl = standard_configuration("COM1", [], fix_position=(51.0, -114.0, 1000.0), fix_height_ellipsoidal=False)
+    assert msl[-2:] == ("UNDULATION EGM96", "FIX POSITION 51.0000000000 -114.0000000000 1000.0000")
     with pytest.raises(EncodeError, match="line break"):
         standard_configuration("COM1", [], extra=["A\nB"])
 

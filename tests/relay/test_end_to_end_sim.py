@@ -87,6 +87,7 @@ def test_rovers_fix_only_with_the_relay_running(rig: tuple[SimBase, list[SimRove
     )
     try:
         for rd in readers:
+            rd.command("INTERFACEMODE COM2 RTCMV3 NONE OFF")  # raw RTCM3 in; the factory NOVATEL mode ignores it
             rd.command("LOG BESTPOSB ONTIME 0.2")
         # Without the relay: no corrections, no RTK.
         for rd in readers:

@@ -24,16 +24,24 @@ def test_receiver_commands_configure_rover_and_base() -> None:
     base, rover_a, rover_b = cfg.receivers
     cmds = receiver_commands(rover_a)
     assert cmds[0] == "UNLOGALL"
-    assert "INTERFACEMODE COM2 RTCMV3 NONE ON" in cmds
-    assert "MARKCONTROL MARK1 ENABLE POSITIVE" in cmds  # rover_a logs MARKPOS/MARKTIME
-    assert "LOG COM1 BESTPOSB ONTIME 0.05" in cmds
-    assert "LOG COM1 MARKTIMEB ONNEW" in cmds
-    assert cmds.index("INTERFACEMODE COM2 RTCMV3 NONE ON") < cmds.index("LOG COM1 BESTPOSB ONTIME 0.05")
+    # the correction port: set to the baud of the rig's cable to it, then to raw RTCM3
+    assert cmds.index("SERIALCONFIG COM2 115200 N 8 1 N OFF") < cmds.index("INTERFACEMODE COM2 RTCMV3 NONE ON")
+    assert "MARKCONTROL MARK1 ENABLE POSITIVE" in cmds  # rover_a logs MARKPOS/MARK1TIME
+    # logs go to the port the commands came in on (over USB, LOG COM1 would go to the physical COM1)
+    assert "LOG THISPORT VERSIONB ONCE" in cmds  # who answers: the receiver's serial number
+    assert "LOG THISPORT BESTPOSB ONTIME 0.05" in cmds
+    assert "LOG THISPORT MARK1TIMEB ONNEW" in cmds
+    assert not any(c.startswith("LOG COM") for c in cmds)
+    assert cmds.index("INTERFACEMODE COM2 RTCMV3 NONE ON") < cmds.index("LOG THISPORT BESTPOSB ONTIME 0.05")
     assert not any(c.startswith("MARKCONTROL") for c in receiver_commands(rover_b))
     base_cmds = receiver_commands(base)
-    assert "FIX POSITION 48.7758000000 9.1829000000 300.0000" in base_cmds
-    assert "LOG COM1 RTCM1077 ONTIME 1" in base_cmds
-    assert not any(c.startswith("INTERFACEMODE") for c in base_cmds)
+    # the fixed height is ellipsoidal: the receiver is told so before FIX reads it (factory: MSL, EGM96)
+    assert base_cmds.index("UNDULATION USER 0.0") + 1 == base_cmds.index(
+        "FIX POSITION 48.7758000000 9.1829000000 300.0000")
+    assert "LOG THISPORT RTCM1077 ONTIME 1" in base_cmds
+    assert not any(c.startswith(("INTERFACEMODE", "SERIALCONFIG")) for c in base_cmds)
+    msl = receiver_commands(base.model_copy(update={"fix_height": "msl"}))
+    assert "UNDULATION EGM96" in msl and "UNDULATION USER 0.0" not in msl
 
 
 def test_marks_and_a_device_that_cannot_open(tmp_path: Path) -> None:

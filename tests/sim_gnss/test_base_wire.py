@@ -11,6 +11,7 @@ from pyrtcm import RTCMReader
 
 from drivers.novatel import BestPos, FrameKind, PositionType
 from sim_devices.gnss import SimBase, SimTimeBase
+from sim_devices.gnss.geoid import egm96_undulation_m
 from tests.sim_gnss.conftest import SPEED, PortReader
 from vsccore.gpstime import NS_PER_S, NS_PER_WEEK
 
@@ -20,7 +21,7 @@ POSITION = (48.7758, 9.1829, 300.0)
 @pytest.fixture
 def base(timebase: SimTimeBase) -> Iterator[SimBase]:
     b = SimBase("base", position=POSITION, timebase=timebase, clock=timebase.make_clock(speed=SPEED),
-                station_id=42, undulation_m=47.9)
+                station_id=42)
     b.start()
     yield b
     b.stop()
@@ -58,18 +59,22 @@ def test_streams_rtcm_that_pyrtcm_decodes(base: SimBase, open_port: Callable[...
 def test_base_commands(base: SimBase, open_port: Callable[..., PortReader]) -> None:
     port = open_port(base.port_path)
     assert port.command("UNLOGALL").message.ok
-    assert port.command("FIX POSITION 48.7 9.1 250.0").message.ok
+    # FIX reads its height above mean sea level (factory UNDULATION EGM96): the antenna's ellipsoidal height
+    # less the geoid's, within the receiver's 25 m integrity limit (a fix 10 km away would be INVALID_FIX)
+    und = egm96_undulation_m(POSITION[0], POSITION[1])
+    assert port.command(f"FIX POSITION {POSITION[0]} {POSITION[1]} {POSITION[2] - und:.4f}").message.ok
     assert port.command("LOG COM1 RTCM1005 ONTIME 2").message.ok
     assert port.command("LOG BESTPOSA ONTIME 1").message.ok
     start = len(port.frames)
     frames = port.until(lambda fs: len(_rtcm(fs[start:])) >= 3)[start:]
     msgs = [RTCMReader.parse(f.raw) for f in _rtcm(frames)]
     assert {m.identity for m in msgs} == {"1005"}
-    ecef = pymap3d.geodetic2ecef(48.7, 9.1, 250.0 + 47.9)  # FIX POSITION height is above MSL
+    ecef = pymap3d.geodetic2ecef(*POSITION)  # the MSL height read back onto the ellipsoid
     assert pytest.approx(ecef, abs=1e-3) == (msgs[0].DF025, msgs[0].DF026, msgs[0].DF027)
     pos = [f.log.body for f in frames if f.log is not None and f.log.name == "BESTPOS"]
     assert pos and isinstance(pos[0], BestPos) and pos[0].pos_type is PositionType.FIXEDPOS
-    assert (pos[0].lat_deg, pos[0].lon_deg, pos[0].hgt_m) == pytest.approx((48.7, 9.1, 250.0))
+    want = (POSITION[0], POSITION[1], POSITION[2] - und)
+    assert (pos[0].lat_deg, pos[0].lon_deg, pos[0].hgt_m) == pytest.approx(want)
     assert port.command("FIX NONE").message.ok
     start = len(port.frames)
     later = port.until(lambda fs: sum(1 for f in fs[start:] if f.log is not None) >= 3)[start:]

@@ -216,6 +216,8 @@ def test_rtk_fixes_only_while_corrections_arrive(make_rover: Callable[..., SimRo
                                                  base: SimBase, truth: GroundTruth, timebase: SimTimeBase) -> None:
     rover = make_rover(rtk=FAST_RTK, clock=base.clock)
     port = open_port(rover.port_path)
+    # COM2 receives raw RTCM3 only once it is set to (a port in the factory NOVATEL mode ignores it)
+    assert port.command("INTERFACEMODE COM2 RTCMV3 NONE OFF").message.ok
     assert port.command("LOG BESTPOSB ONTIME 0.1").message.ok
     src = serial.Serial(base.port_path, 115200, timeout=0.02)
     dst = serial.Serial(rover.correction_port_path, 115200, timeout=0.02)
