@@ -24,7 +24,7 @@ from rig.core.config import load_session
 from rig.data import align
 from rig.data import load_session as load_recording
 from rig.sim.record import record_simulated
-from rig.sim.truth import gnss_min_latency_s, timing_vs_truth
+from rig.sim.truth import timing_vs_truth
 from rig.workflows.demo import demo_config_path
 from sim_devices.gnss import RtkParams
 from sim_devices.vehicle.geodesy import point_geodetic
@@ -38,7 +38,7 @@ def run(drive: str, speed: float, out: Path) -> None:
     cpu0 = time.process_time()
     rec = record_simulated(cfg, out, name="bench", speed=speed, rtk=RTK, lead_s=5.0)
     cpu = time.process_time() - cpu0
-    ds = load_recording(out / "bench", gnss_min_latency_s=gnss_min_latency_s(cfg))
+    ds = load_recording(out / "bench")
     truth = ds.truth()
     gt = dataclasses.replace(truth.truth, meta={"cg_height_m": cfg.profile.vehicle.cg_height_m})
     health = rec.world.health()

@@ -95,7 +95,9 @@ def test_steering_ratio_from_the_demo_circles_matches_the_simulated_gear(demo_ou
 # decoded topics and 0.3 % on the raw ones (reads and blocks are cut as the host schedules them), 5 events
 # and 5 time-base records (both written on the host's housekeeping ticks). A run on a loaded host began
 # logging 1.45 s of simulated time later (the receivers' configuration took longer: 29 of 3255 BESTPOS,
-# 0.9 %) and cut its DAQ blocks 0.6 % fewer, so the counts are held to 3 %.
+# 0.9 %), so the decoded counts are held to 3 %. The raw topics (port reads, CAN and DAQ blocks) and the
+# events are held to their schemas only: the twins that behave like OEM7 receivers (issue 29) pace their
+# ports differently, which changes how many reads carry the same bytes (rover_a: 10257 -> 7054).
 _GOLDEN = Path(__file__).with_name("golden") / "demo_topics.json"
 _LOOSE = ("/raw", "/samples", "/frames", "/rig/events", "/rig/timebase", "/relay/stats")
 
@@ -127,6 +129,7 @@ def test_topics_schemas_and_counts_are_those_of_the_golden_recording(demo_out: P
     for topic, w in want.items():
         g = got[topic]
         assert {k: v for k, v in g.items() if k != "count"} == {k: v for k, v in w.items() if k != "count"}, topic
-        loose = any(topic.endswith(s) or topic == s for s in _LOOSE)
-        tol = max(10, 0.2 * w["count"]) if loose else max(3, 0.03 * w["count"])
-        assert abs(int(g["count"]) - w["count"]) <= tol, (topic, g["count"], w["count"])  # type: ignore[call-overload]
+        if any(topic.endswith(s) or topic == s for s in _LOOSE):
+            assert int(g["count"]) > 0, topic  # type: ignore[call-overload]
+            continue  # how many reads and blocks carry the same bytes is the host's scheduling and the twins' pacing
+        assert abs(int(g["count"]) - w["count"]) <= max(3, 0.03 * w["count"]), (topic, g["count"], w["count"])  # type: ignore[call-overload]

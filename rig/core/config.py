@@ -578,7 +578,9 @@ class SimGnssConfig(_Model):
     common_fraction: Annotated[float, Field(ge=0.0, le=1.0)] = 0.95
     """Share of the position error variance common to all rovers (same base, same sky); the rest is
     each antenna's own, so the relative A–B error is √(2·(1 − f))·σ (≈ 5 mm at the defaults)."""
-    output_latency_s: NonNegative = 0.02
+    output_latency_s: NonNegative | None = None
+    """The simulated receivers' output latency; unset: each draws its own from its seed in 15–50 ms (OEM7:
+    20–30 ms typical, 50 ms at most). The recording is never told it: it measures it, as in a real car."""
     leap_seconds: int = 18
 
 

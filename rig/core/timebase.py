@@ -43,6 +43,7 @@ from vsccore.errors import AnalysisError
 from vsccore.gpstime import GPS_EPOCH_UNIX_NS
 
 __all__ = [
+    "OEM7_OUTPUT_LATENCY_S",
     "ClockEstimator",
     "ClockMap",
     "ClockQuality",
@@ -57,6 +58,11 @@ __all__ = [
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+
+
+OEM7_OUTPUT_LATENCY_S = 0.025
+"""A NovAtel OEM7's BESTPOS/BESTVEL output latency when it is neither configured nor measurable: 20–30 ms
+typical, 50 ms at most (OEM7 Commands and Logs Reference, BESTPOS)."""
 
 
 class FitStatus(StrEnum):
@@ -348,6 +354,23 @@ class ClockEstimator:
         """One (device time, reference receive time) pair."""
         with self._lock:
             self._add(int(device_ns), int(ref_ns) - self._min_latency)
+
+    @property
+    def min_latency_ns(self) -> int:
+        """The known constant latency taken off every reference time."""
+        return self._min_latency
+
+    def add_min_latency(self, delta_ns: int) -> None:
+        """Take ``delta_ns`` more constant latency off every reference time, the pairs seen so far included (a
+        latency measured during the recording: the map moves as if it had been known from the start)."""
+        delta = int(delta_ns)
+        with self._lock:
+            self._min_latency += delta
+            self._y_base -= delta
+            self._recent = deque(((x, r - delta) for x, r in self._recent), maxlen=self._recent.maxlen)
+            if self._fit is not None:
+                x, y, slope = self._fit
+                self._fit = (x, y - delta, slope)
 
     def add_many(self, device_ns: npt.ArrayLike, ref_ns: npt.ArrayLike) -> None:
         """Many pairs at once (vectorised; best in device-time order)."""

@@ -42,9 +42,9 @@ import numpy as np
 import numpy.typing as npt
 
 import rig.core.topics as T  # noqa: N812 - the module is used as a namespace of topic names
-from rig.core.timebase import ClockEstimator, SyncFit, align_sync_pulses
+from rig.core.timebase import OEM7_OUTPUT_LATENCY_S, ClockEstimator, SyncFit, align_sync_pulses, causality_bound_ns
 from rig.store.reader import DamagedRegion, PartScan, TopicMessages, find_parts, scan_part
-from vsccore.errors import AnalysisError, ConfigError, DecodeError, SessionFileError
+from vsccore.errors import AnalysisError, ConfigError, DecodeError, RigError, SessionFileError
 from vsccore.gpstime import GPS_EPOCH_UNIX_NS
 
 if TYPE_CHECKING:
@@ -628,18 +628,67 @@ class Session:
         return None if self._gnss_min_latency_s is None else round(self._gnss_min_latency_s * 1e9)
 
     def gnss_output_latency_ns(self, receiver: str) -> int:
-        """A receiver's fixed output latency (data time → first byte on the port), which the lower
-        envelope cannot see: ``receivers[].output_latency_s`` of the recorded configuration, else
-        (simulated receivers) ``simulation.gnss.output_latency_s``, else 0."""
+        """A receiver's fixed output latency (data time → first byte on the port), which the lower envelope of
+        its own pairs cannot see: ``receivers[].output_latency_s`` of the recorded configuration; else measured
+        from the DAQ's sync pulse (:attr:`measured_output_latency`); else the OEM7 figure
+        :data:`OEM7_OUTPUT_LATENCY_S` with a warning that the host-timed streams carry its uncertainty."""
+        configured = self._configured_latency_ns(receiver)
+        if configured is not None:
+            return configured
+        measured, why = self.measured_output_latency
+        if measured is not None:
+            return measured
+        self._warn(f"{self.path}: receiver {receiver!r}: output latency neither configured nor measured ({why}); "
+                   f"taken as OEM7's typical {OEM7_OUTPUT_LATENCY_S * 1e3:.0f} ms (20-30 ms typical, 50 ms at most): "
+                   "times of CAN and DAQ data on the host clock carry that uncertainty")
+        return round(OEM7_OUTPUT_LATENCY_S * 1e9)
+
+    def _configured_latency_ns(self, receiver: str) -> int | None:
         v = self._receiver_configs.get(receiver, {}).get("output_latency_s")
         if isinstance(v, int | float) and not isinstance(v, bool):
             return round(float(v) * 1e9)
-        sim = self.config.get("simulation")
-        if isinstance(sim, dict):
-            gnss = sim.get("gnss")
-            if isinstance(gnss, dict) and isinstance(gnss.get("output_latency_s"), int | float):
-                return round(float(gnss["output_latency_s"]) * 1e9)
-        return 0
+        return None
+
+    @cached_property
+    def measured_output_latency(self) -> tuple[int | None, str]:
+        """The reference receiver's output latency measured from the data (ns; None: not measurable) and why not.
+
+        The receiver writes its logs a constant time after their GPS time, which shifts every (GPS time,
+        host time) pair alike, so the host → GPS map fitted to them is early by exactly that. The DAQ sees
+        it: each block's last sample is on GPS time through the sync pulse and MARKTIME/MARK1TIME (no host
+        clock involved), and a block cannot reach the host before that sample was taken. Through the map
+        fitted with no output latency, the blocks arrive early by the latency less the most prompt block's
+        delivery time: :func:`rig.core.timebase.causality_bound_ns` of those arrivals is the latency, short by
+        the DAQ's prompt delivery (a lower bound; tens of µs on a USB DAQ).
+        """
+        daq_cfg = self.config.get("daq")
+        if not isinstance(daq_cfg, Mapping) or not daq_cfg.get("sync_channel"):
+            return None, "no DAQ sync channel"
+        device = daq_cfg.get("device")
+        if not isinstance(device, str) or device not in self.daq_devices():
+            return None, "no DAQ samples"
+        est = self._raw_host_clock
+        if est is None or self.leap_seconds is None:
+            return None, "no host → GPS map"
+        marks = [r for r in self.receivers() if len(self.gnss(r).marktime) or len(self.gnss(r).markpos)]
+        if not marks:
+            return None, "no MARKTIME/MARKPOS"
+        try:
+            d = self.daq(device, sync_channel=str(daq_cfg["sync_channel"]), receiver=marks[0])
+            _first, last, host = self.daq_blocks(device)
+        except RigError as exc:
+            return None, f"DAQ not aligned ({exc})"
+        if not len(d):
+            return None, "no DAQ samples"
+        pos = np.minimum(np.searchsorted(d.sample_index, last), len(d) - 1)
+        ok = (d.sample_index[pos] == last) & d.synced[pos]
+        if not ok.any():
+            return None, "no DAQ block timed by the sync pulse"
+        arrival = self.gps_to_utc(est.mapping().inverse_ns(host[ok]))
+        bound = causality_bound_ns(d.time_ns[pos[ok]], arrival)
+        if bound is None:
+            return None, "too few synchronised DAQ blocks"
+        return round(bound), ""
 
     def gnss_log_latency_ns(self, receiver: str, log_name: str, gps_ns: npt.ArrayLike) -> IntArray:
         """The known part of the latency of each ``log_name`` log (e.g. ``BESTPOS``) of ``receiver`` at
@@ -723,6 +772,22 @@ class Session:
         constant ``gnss_min_latency_s`` given to :func:`load_session`) is taken off the host time
         before the lower envelope is fitted, as the live time base does.
         """
+        return self._fit_host_clock(with_output_latency=True)
+
+    @cached_property
+    def _raw_host_clock(self) -> ClockEstimator | None:
+        """:attr:`host_clock` with only the configured output latency taken off (none measured or assumed): the
+        map the output-latency measurement starts from, and the prior that finds the DAQ's sync edges."""
+        return self._fit_host_clock(with_output_latency=False)
+
+    def _raw_host_to_utc(self, host_ns: npt.ArrayLike) -> tuple[IntArray, bool]:
+        h = np.asarray(host_ns, dtype=np.int64)
+        est = self._raw_host_clock
+        if est is None or self.leap_seconds is None:
+            return h, False
+        return self.gps_to_utc(est.mapping().inverse_ns(h)), True
+
+    def _fit_host_clock(self, *, with_output_latency: bool) -> ClockEstimator | None:
         for r in self._clock_receivers():
             gps: list[IntArray] = []
             ref: list[IntArray] = []
@@ -732,8 +797,12 @@ class Session:
                 if not len(tbl) or "gps_time_ns" not in tbl or tbl["gps_time_ns"].dtype.kind != "i":
                     continue
                 g = tbl["gps_time_ns"]
-                known = (np.full(g.shape, self.gnss_min_latency_ns, dtype=np.int64)
-                         if self.gnss_min_latency_ns is not None else self.gnss_log_latency_ns(r, log_name, g))
+                if self.gnss_min_latency_ns is not None:
+                    known = np.full(g.shape, self.gnss_min_latency_ns, dtype=np.int64)
+                elif with_output_latency:
+                    known = self.gnss_log_latency_ns(r, log_name, g)
+                else:
+                    known = (self._configured_latency_ns(r) or 0) + self._log_tx_ns(r, log_name, g)
                 gps.append(g)
                 ref.append(tbl.host_ns - known)
             if gps:
@@ -964,7 +1033,9 @@ class Session:
         marks = marks_tbl["gps_time_ns"].astype(np.int64)
         utc_minus_gps = None if self.leap_seconds is None else GPS_EPOCH_UNIX_NS - self.leap_seconds * _NS
         nominal = 1e9 / rate
-        arrival, mapped = self.host_to_utc(blk.pub)
+        # the map before the output-latency measurement (which needs these very fits): a prior for matching
+        # edges to marks, and the fallback's offset (taken relative to the synchronised runs on the same map)
+        arrival, mapped = self._raw_host_to_utc(blk.pub)
         fits: list[SyncFit | None] = []
         reasons: list[str] = []
         for a, b in runs:

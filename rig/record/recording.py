@@ -74,7 +74,7 @@ from rig.core.quality import (
     live_verdicts,
     stream_of_topic,
 )
-from rig.core.timebase import Timebase
+from rig.core.timebase import OEM7_OUTPUT_LATENCY_S, Timebase
 from rig.core.topics import EventKind, Severity
 from rig.record.can import CAN_BLOCK_AGE_NS, CanDevice, roles_table
 from rig.record.daq import DaqDevice, DaqFactory
@@ -164,6 +164,10 @@ class RecordingSummary:
         return self.recording.parts
 
 
+LATENCY_STEP_NS = 300_000
+"""The smallest output-latency excess the recording acts on (its own figure's scatter is tens of µs)."""
+
+
 def default_session_name(now_ns: int) -> str:
     """``session-YYYYmmdd-HHMMSS`` (UTC) of a host time."""
     return datetime.fromtimestamp(now_ns / 1e9, tz=UTC).strftime("session-%Y%m%d-%H%M%S")
@@ -224,9 +228,13 @@ class Recording:
         self.stats_period_ns = round(stats_period_s * NS_PER_S)
         self.timebase_period_ns = round(timebase_period_s * NS_PER_S)
         self.reconnect = Reconnect(reconnect_first_s, reconnect_max_s)
-        self.gnss_output_latency_ns = (
-            round(cfg.simulation.gnss.output_latency_s * NS_PER_S) if cfg.simulation is not None else 0
-        )
+        # A receiver's output latency is its own (never the simulator's truth): configured per receiver, else
+        # measured from the DAQ's sync pulse during the recording (from 0: the measurement sees only a map
+        # that is early), else OEM7's typical figure.
+        self._measure_latency = cfg.daq is not None and cfg.daq.sync_channel is not None
+        self.gnss_output_latency_ns = 0 if self._measure_latency else round(OEM7_OUTPUT_LATENCY_S * NS_PER_S)
+        self.measured_latency_ns = 0
+        """Output latency of the reference receiver measured so far (added to its clock's known latency)."""
         rovers = [r for r in cfg.receivers if r.role == "rover"]
         rovers.sort(key=lambda r: r.antenna or "z")
         reference = rovers[0].name if rovers else (cfg.receivers[0].name if cfg.receivers else None)
@@ -608,6 +616,7 @@ class Recording:
         now = self.clock.now_ns()
         next_stats = now + self.stats_period_ns
         next_tb = now + self.timebase_period_ns
+        next_latency = now + NS_PER_S
         next_board = 0.0
         while not self._hk_stop.wait(0.1):
             try:
@@ -623,6 +632,9 @@ class Recording:
                     next_tb = now + self.timebase_period_ns
                     self.align_daq()
                     self._timebase_records()
+                if now >= next_latency:
+                    next_latency = now + NS_PER_S
+                    self._measure_output_latency()
                 self._timebase_steps()
                 mono = time.monotonic()
                 if mono >= next_board:
@@ -634,6 +646,38 @@ class Recording:
                     self.failed.set()
             except Exception:  # housekeeping must go on; the cause is in the log
                 log.exception("session %s: housekeeping failed", self.name)
+
+    def _measure_output_latency(self) -> None:
+        """The reference receiver's output latency from the DAQ's causality (:func:`live_daq_causality_ns`): a
+        block cannot reach the host before its last sample (on GPS time through the sync pulse), so where the
+        host map puts it earlier, the receiver's logs left it later than the map assumed. The excess is taken
+        off the reference clock's pairs, those seen included (a TIMEBASE event: log_time of host-timed data
+        before it was early by up to that much)."""
+        ref = self.timebase.reference_receiver
+        if not self._measure_latency or self.daq is None or ref is None or ref not in self.gnss:
+            return
+        if self.gnss[ref].rc.output_latency_s is not None:
+            return  # configured: taken as given
+        segments = [(seg.base, seg.fit) for seg in list(self.daq.segments.values())]
+        if not any(fit is not None for _b, fit in segments):
+            return
+        clock = self.timebase.gnss_clock(ref)
+        if clock.n == 0:
+            return
+        excess = live_daq_causality_ns(self.timebase.clock(self.daq.clock_name).floor_pairs(),
+                                       self.daq.ns_per_sample, segments, clock)
+        if excess is None or excess < LATENCY_STEP_NS:
+            return
+        step = round(excess)
+        clock.add_min_latency(step)
+        self.measured_latency_ns += step
+        now = self.clock.now_ns()
+        self.recorder.event(
+            EventKind.TIMEBASE,
+            f"{ref}: output latency measured from the DAQ sync pulse: {self.measured_latency_ns / 1e6:.2f} ms "
+            f"(+{step / 1e6:.2f} ms; host-timed log_time before this was early by up to that)",
+            log_time_ns=self.timebase.host_to_utc(now), receiver=ref, output_latency_ns=self.measured_latency_ns,
+            step_ns=step, method="daq_causality")
 
     def _refresh_board(self) -> None:
         rec = self.recorder

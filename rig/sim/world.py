@@ -73,6 +73,7 @@ from sim_devices.gnss import (
     SyncSchedule,
 )
 from sim_devices.gnss.geoid import egm96_undulation_m
+from sim_devices.gnss.receiver import LATENCY_RANGE_S
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from sim_devices.vehicle import Drive, GroundTruth, Scenario, VehicleParams, demo_drive, make_scenario, simulate
 from sim_devices.vsc_ecu import RUN_ON_STRETCH_S, EcuOutputs, VscEcu, VscEcuConfig, simulate_ecu
@@ -331,7 +332,8 @@ class SimWorld:
         On the governed clock the last GNSS epoch's logs are written and read before the clock passes
         them, so 0.1 s past its output latency is enough. The free-running clock keeps 0.5 s for
         readers that fall behind. Every device (the ECU too) goes on until the world stops."""
-        tail_s = (0.1 if self.governed else 0.5) + self.sim.gnss.output_latency_s
+        latency = self.sim.gnss.output_latency_s
+        tail_s = (0.1 if self.governed else 0.5) + (LATENCY_RANGE_S[1] if latency is None else latency)
         return self.timebase.truth_start_ns + round((self.duration_s + tail_s) * NS_PER_S)
 
     def start(self, clock: ScaledClock | None = None) -> None:
@@ -709,6 +711,14 @@ class SimWorld:
                     EventKind.INFO, "simulation: " + self.governor_summary(), simulation=True,
                     governor=stats.as_dict(), speed=self.speed, wall_ns=self.clock.wall_ns(),
                 )
+            latencies = {name.removeprefix("gnss:"): h["output_latency_ns"] for name, h in self.health().items()
+                         if name.startswith("gnss:") and "output_latency_ns" in h}
+            if latencies:  # the truth the recording measures (or was told): for scoring only
+                self._truth_source.event(
+                    EventKind.INFO, "simulation: receivers' output latency " + ", ".join(
+                        f"{k} {v / 1e6:.2f} ms" for k, v in sorted(latencies.items())),
+                    gnss_output_latency_ns=latencies, simulation=True,
+                )
             for timing in self.daq_timing():
                 self._truth_source.event(
                     EventKind.INFO,
@@ -1022,7 +1032,7 @@ def _receiver_health(rx: SimReceiver) -> dict[str, int]:
     """A simulated receiver's part of :meth:`SimWorld.health`."""
     lost = rx.bytes_lost()
     out = {"bytes_overrun": rx.bytes_overrun(), "errors": int(rx.error is not None),
-           "bytes_dropped": sum(lost.values())}
+           "bytes_dropped": sum(lost.values()), "output_latency_ns": round(rx.output_latency_s * NS_PER_S)}
     out.update((f"bytes_dropped:{port}", n) for port, n in sorted(lost.items()) if n > 0)
     return out
 

@@ -90,15 +90,15 @@ def sync_pulses(duration_s: float) -> np.ndarray:
 def write_session(out: Path, name: str = "synth", duration_s: float = 20.0, rollover_bytes: int | None = 150_000,
                   *, daq_segments: list[tuple[float, float]] | None = None, simulated: bool = True) -> Synth:
     """A session of known truth. The receivers' logs reach the host ``OUTPUT_LATENCY_S`` plus their serial
-    transmission time (plus jitter) after their GPS time; ``simulated`` says that latency in the
-    simulation section (as a simulated session does), else in each receiver's ``output_latency_s``.
+    transmission time (plus jitter) after their GPS time, stated in each receiver's ``output_latency_s`` (the
+    file has no DAQ sync to measure it from); ``simulated`` adds a simulation section.
     ``daq_segments``: DAQ acquisitions as (start, end) seconds after :data:`DAQ_G0` (default: one from 0),
     numbered in the file the way the recording session does (next index + the gap the host time shows)."""
     rng = np.random.default_rng(42)
     db = load_dbc(DBC)
     rolemap = RoleMap.from_toml(ROLES, db)
     session: dict[str, Any] = {"output": {"name": name}, "can": [{"name": "can0"}],
-                               "receivers": receivers_config(None if simulated else OUTPUT_LATENCY_S)}
+                               "receivers": receivers_config(OUTPUT_LATENCY_S)}
     if simulated:
         session["simulation"] = {"gnss": {"output_latency_s": OUTPUT_LATENCY_S}}
     meta = session_metadata(session=session, vehicle={"wheelbase_m": 2.87}, calibration={"mount_offset_deg": 0.1})

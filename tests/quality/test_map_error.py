@@ -286,8 +286,9 @@ def late_receiver(tmp_path_factory: pytest.TempPathFactory) -> Path:
     cfg = load_config(demo_config_path())
     i = next(k for k, r in enumerate(cfg.receivers) if r.name == "rover_a")
     assert cfg.simulation is not None
-    stated = cfg.simulation.gnss.output_latency_s - LATE_NS / NS
+    stated = 0.02 - LATE_NS / NS  # the simulated receivers' latency set to 20 ms, configured 2 ms short
     cfg = load_config(demo_config_path(), {"simulation.speed": 8.0, "simulation.governed": True,
+                                           "simulation.gnss.output_latency_s": 0.02,
                                            f"receivers.{i}.output_latency_s": stated})
     rec = record_simulated(cfg, out, name="late", drive=make_scenario("straight", speed_kmh=50.0, duration_s=20.0),
                            lead_s=6.0, rtk=RtkParams(time_to_float_s=0.5, time_to_fix_s=1.0))

@@ -31,20 +31,10 @@ FAST_RTK = RtkParams(max_correction_age_s=5.0, float_hold_s=10.0, psrdiff_timeou
                      time_to_fix_s=2.0)
 """A quicker RTK engine than a real receiver's, so a short test drive spends most of its time fixed."""
 
-BESTPOSB_BYTES = 28 + 72 + 4
-"""Header, body and CRC of a binary BESTPOS: its serial transmission time is part of the known latency."""
 
 
 def config(drive: str, speed: float, **overrides: object) -> SessionConfig:
     return load_session(demo_config_path(), {"simulation.drive": drive, "simulation.speed": speed, **overrides})
-
-
-def gnss_min_latency_s(cfg: SessionConfig, receiver: str = "rover_a") -> float:
-    """The constant part of the reference rover's log latency: its output latency plus the BESTPOSB
-    transmission time at the port's baud rate (the lower envelope cannot see either)."""
-    assert cfg.simulation is not None
-    rc = next(r for r in cfg.receivers if r.name == receiver)
-    return cfg.simulation.gnss.output_latency_s + BESTPOSB_BYTES * 10 / rc.baud
 
 
 @dataclass(frozen=True)
@@ -62,7 +52,7 @@ def record(tmp: Path, drive: str = "j_turn", speed: float = 1.0, lead_s: float =
     mapping cannot remove, is then what it is in a car, not multiplied by the clock speed."""
     cfg = config(drive, speed, **overrides)
     rec = record_simulated(cfg, tmp, name="rec", rtk=FAST_RTK, lead_s=lead_s, config_path=demo_config_path())
-    ds = load_recording(tmp / "rec", gnss_min_latency_s=gnss_min_latency_s(cfg))
+    ds = load_recording(tmp / "rec")  # the receivers' output latency measured, as in a car, never told
     t = ds.truth()
     truth = dataclasses.replace(t.truth, meta={"cg_height_m": cfg.profile.vehicle.cg_height_m})
     return Recorded(cfg, rec, ds, truth, t.time_ns)

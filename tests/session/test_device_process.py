@@ -19,7 +19,7 @@ import rig.core.topics as T  # noqa: N812
 from rig.data import load_session as load_recording
 from rig.sim.record import record_simulated
 from rig.workflows.demo import demo_config_path
-from tests.session.recording import FAST_RTK, config, gnss_min_latency_s
+from tests.session.recording import FAST_RTK, config
 from vsccore.errors import SimulationError
 
 
@@ -44,7 +44,7 @@ def test_devices_in_their_own_process_record_every_stream(tmp_path: Path) -> Non
         # loaded host can still cause them, so they are reported, see test_device_losses, not held at 0)
         assert h["bytes_dropped"] == sum(n for k, n in h.items() if k.startswith("bytes_dropped:")), h
 
-    ds = load_recording(tmp_path / "proc", gnss_min_latency_s=gnss_min_latency_s(cfg))
+    ds = load_recording(tmp_path / "proc")
     for rx in ("rover_a", "rover_b"):
         g = ds.gnss(rx)
         assert len(g.bestpos) > 200

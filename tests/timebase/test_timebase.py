@@ -189,3 +189,22 @@ def test_clock_map_round_trips_and_extrapolates() -> None:
     assert np.all(np.diff(y) > 0)
     assert np.array_equal(m.inverse_ns(y), x)
     assert m.one(G0 + 100_000_000_000) == H0 + 100_005_000_000
+
+
+def test_a_latency_learnt_later_moves_the_map_as_if_known_from_the_start() -> None:
+    """ClockEstimator.add_min_latency: the pairs already seen are taken as if the latency had been known."""
+    rng = np.random.default_rng(7)
+    x = np.arange(0, 60_000_000_000, 50_000_000, dtype=np.int64) + 10**18
+    ref = x + 3_000_000_000 + 45_000_000 + rng.integers(0, 2_000_000, x.size)
+    learnt, known = ClockEstimator("learnt"), ClockEstimator("known", min_latency_ns=45_000_000)
+    for est in (learnt, known):
+        for xi, ri in zip(x[:600].tolist(), ref[:600].tolist(), strict=True):
+            est.add(xi, ri)
+    before = learnt.to_ref(int(x[599]))
+    learnt.add_min_latency(45_000_000)
+    assert before is not None and learnt.to_ref(int(x[599])) == before - 45_000_000
+    for est in (learnt, known):
+        est.add_many(x[600:], ref[600:])
+    assert learnt.min_latency_ns == known.min_latency_ns == 45_000_000
+    assert learnt.to_ref(int(x[-1])) == known.to_ref(int(x[-1]))
+    assert np.array_equal(learnt.mapping()(x), known.mapping()(x))
