@@ -379,6 +379,36 @@ def _default_rover_logs() -> tuple[LogRequest, ...]:
     )
 
 
+_RANGECMP_OBS = 60
+"""Observations a RANGECMP epoch carries in the budget: GPS + GLONASS (+ Galileo), two frequencies, open sky."""
+_BODY_BYTES = {"RANGECMP": 4 + 24 * _RANGECMP_OBS, "RTCM1077": 400, "RTCM1087": 300, "RTCM1006": 21, "RTCM1230": 10}
+"""Bodies the binary layouts do not fix (a RANGECMP epoch, RTCM3 MSM7 epochs: typical sizes)."""
+_ASCII_FACTOR = 2.5
+"""An ASCII log's size against its binary one (text fields, separators, a longer header)."""
+PORT_BUDGET_WARN = 0.7
+"""Share of a port's byte rate above which a log set leaves little margin for an epoch's burst."""
+
+
+def port_budget(rc: ReceiverConfig) -> tuple[float, float]:
+    """(bytes per second the receiver's ONTIME logs need, bytes per second its port carries at ``baud``: 10 bits
+    a byte). An OEM7 drops what its port cannot carry and flags it in RXSTATUS (OEM7 Commands and Logs
+    Reference, RXSTATUS: COM port transmit buffer overrun)."""
+    from drivers.novatel.layouts import CODECS_BY_NAME
+
+    need = 0.0
+    for lr in rc.logs:
+        if lr.trigger is not LogTrigger.ONTIME or not lr.period_s:
+            continue
+        base = lr.name[:-1] if lr.name[-1:] in ("A", "B", "S") and len(lr.name) > 1 else lr.name
+        codec = CODECS_BY_NAME.get(base)
+        body = codec.size if codec is not None and codec.fixed_layout else _BODY_BYTES.get(base, 100)
+        size = float(body if base.startswith("RTCM") else 28 + body + 4)
+        if lr.name.endswith("A"):
+            size *= _ASCII_FACTOR
+        need += size / lr.period_s
+    return need, rc.baud / 10.0
+
+
 class ReceiverConfig(_Model):
     """A NovAtel receiver on a serial port (or a pyserial URL)."""
 
@@ -418,6 +448,16 @@ class ReceiverConfig(_Model):
     and its firmware, which the time base cannot see and must be told). None: 0 for a real receiver,
     ``simulation.gnss.output_latency_s`` for the simulated ones. The serial transmission time of each
     log (its length at ``baud``) is removed on top of it."""
+
+    @model_validator(mode="after")
+    def _budget(self) -> Self:
+        need, carry = port_budget(self)
+        if need > carry:
+            raise ValueError(
+                f"receiver {self.name!r}: its logs need about {need / 1e3:.1f} kB/s but the port carries "
+                f"{carry / 1e3:.1f} kB/s at {self.baud} Bd: the receiver would drop logs (RXSTATUS overrun); "
+                "raise baud, log less often, or take the raw observations (RANGECMPB) at a lower rate")
+        return self
 
     @model_validator(mode="after")
     def _roles(self) -> Self:
