@@ -15,8 +15,8 @@ from .base import (
     TerminalConfig,
 )
 from .health import ChannelHealth, HealthLimits
-from .registry import ENTRY_POINT_GROUP, create_backend, known_backends, resolve_backend
 from .link import DaqLink, ReconnectPolicy
+from .registry import ENTRY_POINT_GROUP, create_backend, known_backends, resolve_backend
 from .sync import Edge, EdgePolarity, SampleClockFit, SyncEdgeDetector, find_edges, fit_sample_clock
 
 __all__ = [

@@ -213,10 +213,18 @@ def sim_record(
     live_token: LiveToken = None,
     live_status_port: LiveStatusPort = None,
     live_full_rate: LiveFullRate = False,
+    fault: Annotated[
+        list[str] | None,
+        typer.Option("--fault", help="A fault to rehearse, KIND[:TARGET][@T0[..T1]] in s of drive time (repeatable): "
+                     "corrections:RECEIVER@T0..T1 (correction cable pulled), reset:RECEIVER@T, "
+                     "unplug:RECEIVER@T0..T1, can-unplug@T0..T1, daq-unplug@T0..T1, daq-float:CHANNEL (open input). "
+                     "The devices then run in this process."),
+    ] = None,
 ) -> None:
     """Record a simulated session: the simulated car of CONFIG with every device on pseudo-terminals, a
     virtual CAN bus and the simulated DAQ, through the real recording path, until the drive ends."""
     from rig.core.config import load_session, parse_override
+    from rig.sim.faults import fault_actions, floating_channels, parse_fault
     from rig.sim.record import FAST_SPEED, record_simulated
 
     overrides = dict(parse_override(item) for item in (set_ or []))
@@ -228,6 +236,9 @@ def sim_record(
     factor = speed if speed is not None else cfg.simulation.speed
     if fast:
         factor = max(factor, FAST_SPEED)
+    faults = [parse_fault(text, cfg) for text in (fault or [])]
+    if faults and device_process:
+        device_process = False  # the faults act on the devices, which are then in this process
     _check_free_space(cfg, out)  # before the simulated world and its devices start
     live_opts = _live_options(live, live_port, live_bind, live_token, live_status_port, live_full_rate)
     stop = threading.Event()
@@ -240,7 +251,7 @@ def sim_record(
 
         result = record_simulated(
             cfg, out, name=name, speed=factor, stop=stop, tick=tick, config_path=config, device_process=device_process,
-            on_started=started,
+            on_started=started, actions=fault_actions(faults, cfg), floating=floating_channels(faults),
         )
     world = result.world
     typer.echo(

@@ -7,7 +7,7 @@ import logging
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -71,18 +71,20 @@ def record_simulated(
     truth: GroundTruth | None = None,
     device_process: bool = False,
     governed: bool | None = None,
+    floating: Collection[str] = (),
 ) -> SimRecording:
     """Run a :class:`SimWorld` and record it with a :class:`~rig.record.recording.Recording` until the
     drive ends (or ``stop`` is set, or the recording fails); return what was recorded.
 
     ``actions`` run at their truth times on this thread; ``tick`` every 0.25 s of real time (a
     dashboard); ``on_started`` once the session records. ``device_process``, ``governed``: see
-    :class:`SimWorld`; the governed clock is released once the session has stopped.
+    :class:`SimWorld`; the governed clock is released once the session has stopped. ``floating``: DAQ channels
+    left open (:mod:`rig.sim.faults`).
     """
     t0 = time.monotonic()
     stop = stop or threading.Event()
     world = SimWorld(cfg, drive=drive, speed=speed, lead_s=lead_s, rtk=rtk, truth=truth,
-                     device_process=device_process, governed=governed)
+                     device_process=device_process, governed=governed, floating=floating)
     switch = sys.getswitchinterval()
     if world.governed:
         # readers that wake for their data must get the interpreter soon (see _device_host_main)

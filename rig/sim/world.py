@@ -36,7 +36,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -60,7 +60,14 @@ from drivers.optical import OpticalSensorSpec
 from rig.core.config import AntennaConfig, CanConfig, DaqConfig, ReceiverConfig, SessionConfig, SimulationConfig
 from rig.core.topics import EventKind, Severity
 from rig.record.recording import Recording
-from sim_devices.daq import SimDaqBackend, SimDaqLink, SimOpticalSensor, SyncPulseOutput, sim_daq_sources
+from sim_devices.daq import (
+    FloatingInput,
+    SimDaqBackend,
+    SimDaqLink,
+    SimOpticalSensor,
+    SyncPulseOutput,
+    sim_daq_sources,
+)
 from sim_devices.gnss import (
     DEFAULT_SOLUTION_NOISE,
     GnssErrorParams,
@@ -256,11 +263,14 @@ class SimWorld:
         truth: GroundTruth | None = None,
         device_process: bool = False,
         governed: bool | None = None,
+        floating: Collection[str] = (),
         _part: DevicePart | None = None,
     ) -> None:
         if cfg.simulation is None:
             raise ConfigError("simulation: a simulated session needs a [simulation] table in its configuration")
         self.cfg = cfg
+        self.floating = frozenset(floating)
+        """DAQ channels left open (a fault: noise and mains hum instead of their signal)."""
         self.sim: SimulationConfig = cfg.simulation
         sim = self.sim
         self.speed = float(speed if speed is not None else sim.speed)
@@ -654,6 +664,8 @@ class SimWorld:
         analog = [AnalogChannelSpec.from_config(a.model_dump(), f"daq.analog.{a.name}") for a in daq.analog]
         sync = SyncPulseOutput.from_gps(self.sync, self.timebase) if daq.sync_channel is not None else None
         sources = sim_daq_sources(channels, optical=sensors, analog=analog, sync_channel=daq.sync_channel, sync=sync)
+        physical = {c.name: c.physical_channel for c in channels}
+        sources.update((physical[name], FloatingInput()) for name in self.floating if name in physical)
 
         def factory() -> SimDaqBackend:
             backend = SimDaqBackend(
