@@ -50,6 +50,14 @@ from cantools.database.can import Message as DbcMessage
 from scipy.signal import lfilter
 
 from drivers.can.checks import ChecksumAlgorithm, get_checksum
+from drivers.can.controller import (
+    CAN_ERR_BUSOFF,
+    CAN_ERR_CRTL,
+    CAN_ERR_CRTL_TX_PASSIVE,
+    CAN_ERR_CRTL_TX_WARNING,
+    CAN_ERR_RESTARTED,
+    socketcan_error_frame,
+)
 from drivers.can.dbc import load_dbc
 from drivers.can.vector_encode import MessageEncoder, SignalLayout
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
@@ -927,7 +935,13 @@ class VscEcu:
         """Set when the drive has been sent to its end (never, when running on), stopped, or failed."""
         self.frames_sent = 0
         self.frames_skipped = 0
+        self.frames_lost_bus_off = 0
+        """Frames not sent because the bus was off (:meth:`bus_off`)."""
         self.failure: BaseException | None = None
+        self._fault_lock = threading.Lock()
+        self._bus_off_request: tuple[int, threading.Event] | None = None
+        self._bus_off_until: int | None = None
+        self._bus_off_done: threading.Event | None = None
 
     def start(self) -> None:
         """Start sending on a thread (see :meth:`run`)."""
@@ -950,6 +964,60 @@ class VscEcu:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    def bus_off(self, duration_s: float) -> threading.Event:
+        """Put the bus into bus-off for ``duration_s`` (clock time), from the ECU's next transmit slot.
+
+        The reading side sees it as a SocketCAN interface reports a controller driven off the bus
+        (``linux/can/error.h``): error frames for error warning and error passive (TEC 96, 128), then
+        ``CAN_ERR_BUSOFF``; no frame for the span (the ECU's frames due then are lost, counted in
+        :attr:`frames_lost_bus_off`); then ``CAN_ERR_RESTARTED`` at the span's end, as the kernel sends
+        it after ``restart-ms``, and the frames resume. The error frames carry their times as stamps,
+        like every frame the ECU sends. Returns an event set once the bus is back.
+
+        Raises:
+            SimulationError: ``duration_s`` is not positive, or a bus-off is already pending or running.
+        """
+        if not duration_s > 0:
+            raise SimulationError(f"simulated VSC ECU: bus-off duration must be > 0 s, got {duration_s}")
+        done = threading.Event()
+        with self._fault_lock:
+            if self._bus_off_request is not None or self._bus_off_until is not None:
+                raise SimulationError("simulated VSC ECU: a bus-off is already pending or running")
+            self._bus_off_request = (round(duration_s * 1e9), done)
+        return done
+
+    def _fault_step(self, me: Participant, due_ns: int) -> bool:
+        """Start a requested bus-off at this transmit slot; True while the bus is off."""
+        with self._fault_lock:
+            request = self._bus_off_request
+            if request is None or self._bus_off_until is not None:
+                return self._bus_off_until is not None
+            self._bus_off_request = None
+            duration_ns, self._bus_off_done = request
+            self._bus_off_until = due_ns + duration_ns
+        stamp = due_ns / 1e9
+        for frame in (
+            socketcan_error_frame(CAN_ERR_CRTL, status=CAN_ERR_CRTL_TX_WARNING, tx_errors=96, rx_errors=0,
+                                  timestamp=stamp),
+            socketcan_error_frame(CAN_ERR_CRTL, status=CAN_ERR_CRTL_TX_PASSIVE, tx_errors=128, rx_errors=0,
+                                  timestamp=stamp),
+            socketcan_error_frame(CAN_ERR_BUSOFF, timestamp=stamp),
+        ):
+            me.sent(due_ns)
+            self._bus.send(frame)
+        log.info("simulated VSC ECU: bus-off for %.3f s", duration_ns / 1e9)
+        return True
+
+    def _bus_restarted(self, me: Participant, until_ns: int) -> None:
+        me.sent(until_ns)
+        self._bus.send(socketcan_error_frame(CAN_ERR_RESTARTED, timestamp=until_ns / 1e9))
+        with self._fault_lock:
+            self._bus_off_until = None
+            done, self._bus_off_done = self._bus_off_done, None
+        log.info("simulated VSC ECU: bus restarted after bus-off")
+        if done is not None:
+            done.set()
 
     def _thread_main(self) -> None:
         try:
@@ -988,9 +1056,18 @@ class VscEcu:
         # it): otherwise every late wake-up puts the frame's receive time the budget late
         hold = me.budget_ns
         for due_ns, frame_id, data in zip(due, table.frame_id.tolist(), table.payload, strict=True):
+            until = self._bus_off_until
+            if until is not None and due_ns >= until:  # the restart comes at its own time, before this frame
+                me.at(until - hold)
+                if not clock.sleep_until_ns(until, self._stop):
+                    return False
+                self._bus_restarted(me, until)
             me.at(due_ns - hold)
             if not clock.sleep_until_ns(due_ns, self._stop):
                 return False
+            if (self._bus_off_request is not None or self._bus_off_until is not None) and self._fault_step(me, due_ns):
+                self.frames_lost_bus_off += 1
+                continue
             if clock.now_ns() - due_ns > max_lag:
                 self.frames_skipped += 1
                 continue
@@ -998,6 +1075,11 @@ class VscEcu:
             send(_SentFrame(timestamp=due_ns / 1e9, arbitration_id=frame_id, is_extended_id=False, data=data,
                             dlc=len(data)))
             self.frames_sent += 1
+        until = self._bus_off_until
+        if until is not None and not self._stop.is_set():  # a bus-off running past the last frame ends too
+            me.at(until - hold)
+            if clock.sleep_until_ns(until, self._stop):
+                self._bus_restarted(me, until)
         return not self._stop.is_set()
 
     def _next_stretch(self) -> _FrameTable:
@@ -1064,6 +1146,13 @@ class SimulatedVscBus:
         if self.ecu is None:
             raise RuntimeError("simulated VSC bus not started")
         return self.ecu.finished
+
+    def bus_off(self, duration_s: float) -> threading.Event:
+        """Put the bus into bus-off for ``duration_s`` (see :meth:`VscEcu.bus_off`); the event is set
+        once it is back. Raises RuntimeError before start."""
+        if self.ecu is None:
+            raise RuntimeError("simulated VSC bus not started")
+        return self.ecu.bus_off(duration_s)
 
     def start(self) -> None:
         """Open the ECU's bus, start the socketcand server (if serving) and the ECU.

@@ -9,8 +9,12 @@ a bus-off controller and from an interface that disappears (a USB adapter pulled
 server gone): close, back off on the stop event, reopen, and report the gap as a :class:`BusGap`
 event with its start and end host times. ``stop()`` returns promptly, even during a back-off.
 
-Which clock ``msg.timestamp`` comes from depends on the interface (see :data:`TIMESTAMP_SOURCES`);
-every frame says which one it carries, and the host receive time always comes from the injected
+What differs between interfaces lives beside this module: option names, listen-only and clocks in
+:mod:`drivers.can.interfaces`, controller-state decoding in :mod:`drivers.can.controller`, PCAN FD
+timing in :mod:`drivers.can.timing`, SocketCAN bring-up checks in :mod:`drivers.can.socketcan_link`.
+Every frame says which clock its device stamp came from (:class:`TimestampSource`); whether that
+stamp or the host receive time places it on the session's time base is the bus's
+:class:`FrameTime`. The host receive time always comes from the injected
 :class:`~vsccore.clock.Clock` so simulated sessions stay on one time base.
 
 Only python-can ``Message`` objects are handled here; decoding signals is ``drivers.can.roles``'s job.
@@ -18,25 +22,49 @@ Only python-can ``Message`` objects are handled here; decoding signals is ``driv
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import enum
 import logging
 import os
+import re
 import socket
 import threading
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from types import MappingProxyType
 from typing import Any
 
 import can
 from can.util import len2dlc
 
 from drivers.can._records import positional_constructor
+from drivers.can.controller import (
+    BusState,
+    ControllerMonitor,
+    ControllerReport,
+    controller_monitor_for,
+    error_counters_from_error_frame,
+    state_from_error_frame,
+)
+from drivers.can.interfaces import (
+    TIMESTAMP_SOURCES,
+    FrameTime,
+    ListenOnly,
+    TimestampSource,
+    check_options,
+    default_frame_time,
+    listen_only_options,
+    profile_for,
+    timestamp_source_for,
+)
+from drivers.can.socketcan_link import SocketcanLink, check_link, read_link
+from drivers.can.timing import DEFAULT_DATA_SAMPLE_POINT, DEFAULT_SAMPLE_POINT, PCAN_FD_TIMING_KEYS, pcan_fd_timing
 from vsccore.clock import Clock
 from vsccore.errors import ConfigError, DeviceError, DeviceTimeoutError
 
 __all__ = [
+    "TIMESTAMP_SOURCES",
     "BusEvent",
     "BusGap",
     "BusLoadMeter",
@@ -49,71 +77,19 @@ __all__ = [
     "CanBusLink",
     "CanFrame",
     "CanFrameFlag",
+    "FrameTime",
     "TimestampSource",
+    "bus_notes",
     "crc15_can",
     "error_counters_from_error_frame",
     "frame_bit_times",
     "open_bus",
+    "pcan_options",
+    "state_from_error_frame",
     "timestamp_source_for",
 ]
 
 log = logging.getLogger(__name__)
-
-
-class TimestampSource(enum.Enum):
-    """Which clock a frame's device timestamp (``msg.timestamp``) was read from."""
-
-    HARDWARE = "hardware"
-    """The adapter's own counter, latched at the frame's end of frame (PCAN, Kvaser, Vector, …)."""
-    KERNEL = "kernel"
-    """Linux ``SO_TIMESTAMP(NS)`` taken in the CAN driver's receive path (SocketCAN; socketcand
-    forwards the *server host's* kernel stamp, so it is a remote clock)."""
-    HOST = "host"
-    """python-can stamped ``time.time()`` in user space (virtual bus, slcan, serial adapters);
-    as good as the host receive time and no better."""
-
-
-# Per python-can interface name. Interfaces not listed are taken as HOST, the conservative choice:
-# the time estimator then treats their stamps as carrying host latency.
-TIMESTAMP_SOURCES: Mapping[str, TimestampSource] = MappingProxyType(
-    {
-        "socketcan": TimestampSource.KERNEL,
-        "socketcand": TimestampSource.KERNEL,
-        "pcan": TimestampSource.HARDWARE,
-        "kvaser": TimestampSource.HARDWARE,
-        "vector": TimestampSource.HARDWARE,
-        "ixxat": TimestampSource.HARDWARE,
-        "neovi": TimestampSource.HARDWARE,
-        "etas": TimestampSource.HARDWARE,
-        "nican": TimestampSource.HARDWARE,
-        "nixnet": TimestampSource.HARDWARE,
-        "systec": TimestampSource.HARDWARE,
-        "virtual": TimestampSource.HOST,
-        "slcan": TimestampSource.HOST,
-        "serial": TimestampSource.HOST,
-        "seeedstudio": TimestampSource.HOST,
-        "udp_multicast": TimestampSource.HOST,
-    }
-)
-
-
-def timestamp_source_for(interface: str) -> TimestampSource:
-    """The clock that python-can's ``interface`` stamps received frames with (HOST if unknown)."""
-    return TIMESTAMP_SOURCES.get(interface.lower(), TimestampSource.HOST)
-
-
-class BusState(enum.Enum):
-    """Controller state as far as the interface lets us see it."""
-
-    UNKNOWN = "unknown"
-    """The interface reports no state (virtual bus, most adapters through python-can)."""
-    ACTIVE = "active"
-    WARNING = "warning"
-    """Error counters above 96: still error active, but the bus is in trouble."""
-    PASSIVE = "passive"
-    BUS_OFF = "bus_off"
-    DISCONNECTED = "disconnected"
-    """The interface is closed: being reopened after a failure, or the session is stopped."""
 
 
 class CanFrameFlag(enum.Flag):
@@ -121,7 +97,7 @@ class CanFrameFlag(enum.Flag):
 
     NONE = 0
     ERROR_FRAME = enum.auto()
-    """An error report from the controller (SocketCAN error class in the identifier)."""
+    """An error report from the controller (its encoding depends on the interface: drivers.can.controller)."""
     REMOTE = enum.auto()
     BITRATE_SWITCH = enum.auto()
     ERROR_STATE_INDICATOR = enum.auto()
@@ -164,6 +140,12 @@ class BusOpened:
     channel: str
     channel_info: str
     timestamp_source: TimestampSource
+    frame_time: FrameTime = FrameTime.INTERFACE
+    """Whether the interface's stamps or the host receive times place the frames on the time base."""
+    listen_only: bool | None = None
+    """The listen-only setting asked for (None: the interface's own default)."""
+    notes: tuple[str, ...] = ()
+    """What the rig could not set or check on this interface (worth a warning)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -177,15 +159,16 @@ class BusLost:
 
 @dataclass(frozen=True, slots=True)
 class BusGap:
-    """A span without reception, reported when it ends (reopened) or when the session stops."""
+    """A span without reception, reported when it ends (reopened or restarted) or when the session stops."""
 
     start_ns: int
     """Host time at which the loss was detected."""
     end_ns: int
-    """Host time at which the interface was open again (or the session stopped)."""
+    """Host time at which the interface was open again, or the controller back from bus-off (or the session stopped)."""
     bus: str
     reason: str
     reopen_attempts: int
+    """0 when the controller came back by itself (SocketCAN's ``restart-ms``) without a reopen."""
     recovered: bool
     """False when the session was stopped before the interface came back."""
     last_frame_ns: int | None
@@ -194,7 +177,7 @@ class BusGap:
 
 @dataclass(frozen=True, slots=True)
 class BusStateChanged:
-    """The controller state changed (from ``bus.state`` where supported, or from error frames)."""
+    """The controller state changed (as the interface reports it: drivers.can.controller)."""
 
     host_ts_ns: int
     bus: str
@@ -228,14 +211,23 @@ BusEvent = BusOpened | BusLost | BusGap | BusStateChanged | BusStats
 
 # --- configuration and opening -----------------------------------------------------------------
 
+_FRAME_TIMES = {t.value: t for t in FrameTime}
+_CLOCKS = {s.value: s for s in TimestampSource if s is not TimestampSource.HOST}
+
 
 @dataclass(frozen=True, slots=True)
 class CanBusConfig:
     """How to open one CAN bus through python-can.
 
     ``options`` are passed to ``can.Bus`` as they are (``host``/``port`` for socketcand,
-    ``receive_own_messages``, vendor options …). ``timestamp_source`` overrides the per-interface
-    default of :func:`timestamp_source_for` (e.g. an slcan adapter with hardware stamps).
+    ``receive_own_messages``, vendor options …), checked first against what the interface takes
+    (:func:`drivers.can.interfaces.check_options`). ``listen_only``: True keeps the controller from
+    acknowledging and transmitting (how, per interface: :mod:`drivers.can.interfaces`), False makes it
+    active, None leaves python-can's default (active; :class:`CanBusLink`, which only reads, takes
+    None as True). ``frame_time`` overrides the per-interface default of
+    :func:`drivers.can.interfaces.default_frame_time`; ``timestamp_source`` the clock of the stamps
+    (:func:`timestamp_source_for`, e.g. an slcan adapter with hardware stamps). ``sample_point`` and
+    ``data_sample_point`` (fractions) are used where the rig derives a timing (PCAN FD).
     """
 
     interface: str
@@ -246,6 +238,10 @@ class CanBusConfig:
     options: Mapping[str, Any] = field(default_factory=dict)
     name: str = "can"
     timestamp_source: TimestampSource | None = None
+    listen_only: bool | None = None
+    frame_time: FrameTime | None = None
+    sample_point: float | None = None
+    data_sample_point: float | None = None
 
     def __post_init__(self) -> None:
         where = f"can {self.name!r}"
@@ -258,11 +254,27 @@ class CanBusConfig:
                 raise ConfigError(f"{where}.data_bitrate: given but fd is false")
             if self.data_bitrate <= 0:
                 raise ConfigError(f"{where}.data_bitrate: must be > 0, got {self.data_bitrate}")
+        for key in ("sample_point", "data_sample_point"):
+            value = getattr(self, key)
+            if value is not None and not 0.5 <= value < 1.0:
+                raise ConfigError(f"{where}.{key}: a fraction of the bit time in [0.5, 1), got {value}")
+        check_options(self.interface, self.options, where=f"{where}.options")
+        pcan_options(self)  # a PCAN FD bus without a derivable timing is refused here, naming the keys
 
     @property
     def clock(self) -> TimestampSource:
         """The clock of ``msg.timestamp`` for this interface."""
         return self.timestamp_source or timestamp_source_for(self.interface)
+
+    @property
+    def time_from(self) -> FrameTime:
+        """Whether the interface's stamps or the host receive times place frames on the time base."""
+        return self.frame_time or default_frame_time(self.interface)
+
+    @property
+    def uses_interface_stamps(self) -> bool:
+        """True when the frames' device stamps (not their host receive times) are to be trusted."""
+        return self.time_from is FrameTime.INTERFACE
 
     def describe(self) -> str:
         """``"name (interface channel)"`` for messages and logs."""
@@ -272,11 +284,13 @@ class CanBusConfig:
     def from_mapping(cls, table: Mapping[str, Any], **overrides: Any) -> CanBusConfig:
         """Build from a ``[[can]]`` table of the session configuration (e.g. a pydantic ``model_dump()``).
 
-        Reads ``name``, ``interface``, ``channel``, ``bitrate``, ``fd``, ``data_bitrate``, and
-        ``host`` / ``port`` (socketcand), which go into ``options``; an ``options`` table is
-        passed to python-can as it is. Other keys (``dbc``, ``roles`` …) are ignored here.
-        ``overrides`` replace fields (e.g. ``channel=`` from a command-line option); ``None``
-        values in ``table`` or ``overrides`` mean "not given".
+        Reads ``name``, ``interface``, ``channel``, ``bitrate``, ``fd``, ``data_bitrate``,
+        ``listen_only``, ``timestamp_source`` (``"interface"`` or ``"host"``; ``"hardware"`` or
+        ``"kernel"`` name the stamps' clock and mean ``"interface"``), ``sample_point``,
+        ``data_sample_point``, and ``host`` / ``port`` (socketcand), which go into ``options``; an
+        ``options`` table is passed to python-can as it is. Other keys (``dbc``, ``roles`` …) are
+        ignored here. ``overrides`` replace fields (e.g. ``channel=`` from a command-line option);
+        ``None`` values in ``table`` or ``overrides`` mean "not given".
 
         Raises:
             ConfigError: a missing interface or channel, or an invalid value (the key is named).
@@ -292,11 +306,21 @@ class CanBusConfig:
             if not merged.get(key):
                 raise ConfigError(f"can {name!r}.{key}: missing (required)")
         source = merged.get("timestamp_source")
-        try:
-            clock = TimestampSource(source) if isinstance(source, str) else source
-        except ValueError:
-            known = ", ".join(s.value for s in TimestampSource)
-            raise ConfigError(f"can {name!r}.timestamp_source: {source!r} is not one of {known}") from None
+        clock: TimestampSource | None = None
+        frame_time: FrameTime | None = None
+        if isinstance(source, FrameTime):
+            frame_time = source
+        elif isinstance(source, TimestampSource):
+            clock = source
+        elif source is not None:
+            text = str(source).lower()
+            if text in _FRAME_TIMES:
+                frame_time = _FRAME_TIMES[text]
+            elif text in _CLOCKS:
+                clock, frame_time = _CLOCKS[text], FrameTime.INTERFACE
+            else:
+                raise ConfigError(f"can {name!r}.timestamp_source: {source!r} is not one of interface, host "
+                                  "(or the stamps' clock: hardware, kernel)")
         return cls(
             interface=str(merged["interface"]),
             channel=str(merged["channel"]),
@@ -306,7 +330,69 @@ class CanBusConfig:
             options=options,
             name=name,
             timestamp_source=clock,
+            listen_only=merged.get("listen_only"),
+            frame_time=frame_time,
+            sample_point=merged.get("sample_point"),
+            data_sample_point=merged.get("data_sample_point"),
         )
+
+
+def pcan_options(config: CanBusConfig) -> dict[str, int]:
+    """The PCAN FD timing options python-can needs for ``config`` (empty when not a PCAN FD bus).
+
+    A timing given in ``options`` is used as it is when complete; otherwise it is derived from
+    ``bitrate`` and ``data_bitrate`` (:func:`drivers.can.timing.pcan_fd_timing`).
+
+    Raises:
+        ConfigError: a partial timing in ``options``, no ``data_bitrate``, or no PCAN timing giving
+            both bitrates exactly; the message names the keys to give.
+    """
+    if config.interface.lower() != "pcan" or not config.fd:
+        return {}
+    where = f"can {config.name!r}"
+    given = [k for k in ("f_clock", "f_clock_mhz", *PCAN_FD_TIMING_KEYS) if k in config.options]
+    if given:
+        missing = [k for k in PCAN_FD_TIMING_KEYS if k not in config.options]
+        if "f_clock" not in config.options and "f_clock_mhz" not in config.options:
+            missing.insert(0, "f_clock (or f_clock_mhz)")
+        if missing:
+            raise ConfigError(f"{where}.options: a PCAN FD timing needs all of its keys; missing {', '.join(missing)} "
+                              f"(or give none, and bitrate, data_bitrate and sample points to derive it)")
+        return {}
+    if config.bitrate is None or config.data_bitrate is None:
+        raise ConfigError(f"{where}.data_bitrate: a PCAN FD bus needs bitrate and data_bitrate to derive its timing "
+                          f"(or the timing in options: f_clock, {', '.join(PCAN_FD_TIMING_KEYS)})")
+    timing = pcan_fd_timing(
+        config.bitrate, config.data_bitrate,
+        sample_point=config.sample_point or DEFAULT_SAMPLE_POINT,
+        data_sample_point=config.data_sample_point or DEFAULT_DATA_SAMPLE_POINT,
+        where=where,
+    )
+    return timing.as_options()
+
+
+def bus_notes(config: CanBusConfig, *, read_socketcan: Callable[[str], SocketcanLink] = read_link
+              ) -> tuple[str, ...]:
+    """What the rig cannot set or see on ``config``'s interface (listen-only, controller state), and
+    for SocketCAN what its ``ip link`` settings are worth a warning for (``restart-ms`` 0)."""
+    notes: list[str] = []
+    if config.interface.lower() == "socketcan":
+        with contextlib.suppress(DeviceError):  # open_bus refuses such an interface with the same message
+            notes.extend(check_link(read_socketcan(str(config.channel)), bitrate=config.bitrate,
+                                    listen_only=config.listen_only, where=config.describe()))
+    profile = profile_for(config.interface)
+    if config.listen_only:
+        if profile is None:
+            notes.append(f"listen-only is not known for interface {config.interface!r}: check the adapter's settings")
+        elif profile.listen_only is ListenOnly.SERVER:
+            notes.append("listen-only is the socketcand server's interface setting (ip link … listen-only on), "
+                         "which the rig cannot check")
+    monitor_note = controller_monitor_for(config.interface).note
+    if monitor_note:
+        notes.append(monitor_note)
+    if config.interface.lower() == "socketcan" and config.options.get("ignore_rx_error_frames"):
+        notes.append("ignore_rx_error_frames: the controller's error frames, and so its state, are not received")
+    return tuple(notes)
 
 
 class _SocketcandFragmentFilter(logging.Filter):
@@ -348,15 +434,25 @@ def _probe_socketcand(config: CanBusConfig, timeout_s: float) -> None:
         )
 
 
-def open_bus(config: CanBusConfig, *, probe_timeout_s: float = 1.0) -> can.BusABC:
+_UNEXPECTED_KEY = re.compile(r"unexpected keyword argument '(\w+)'")
+
+
+def open_bus(config: CanBusConfig, *, probe_timeout_s: float = 1.0,
+             read_socketcan: Callable[[str], SocketcanLink] = read_link) -> can.BusABC:
     """Open the python-can interface of ``config``.
 
     The bitrate is passed when known; ``fd`` and ``data_bitrate`` only for CAN FD, so classic
-    interfaces that do not accept them are not bothered.
+    interfaces that do not accept them are not bothered; a PCAN FD bus gets its derived timing
+    (:func:`pcan_options`); ``listen_only`` becomes the interface's own option
+    (:func:`drivers.can.interfaces.listen_only_options`). A SocketCAN interface is checked first
+    (:func:`drivers.can.socketcan_link.check_link`: up, bitrate, listen-only); ``read_socketcan``
+    replaces :func:`~drivers.can.socketcan_link.read_link` (tests).
 
     Raises:
+        ConfigError: python-can's interface refused an option (the option and the interface are named).
         DeviceError: the interface cannot be opened (unknown interface name, missing driver,
-            adapter not present, socketcand server not answering); the message names the bus.
+            adapter not present, SocketCAN interface down or not set up, socketcand server not
+            answering); the message names the bus and, where known, the fix.
     """
     kwargs: dict[str, Any] = dict(config.options)
     if config.bitrate is not None:
@@ -365,7 +461,14 @@ def open_bus(config: CanBusConfig, *, probe_timeout_s: float = 1.0) -> can.BusAB
         kwargs["fd"] = True
         if config.data_bitrate is not None:
             kwargs["data_bitrate"] = config.data_bitrate
-    if config.interface == "socketcand":
+    kwargs.update(pcan_options(config))
+    kwargs.update(listen_only_options(config.interface, config.listen_only))
+    interface = config.interface.lower()
+    if interface == "socketcan":
+        check_link(read_socketcan(str(config.channel)), bitrate=config.bitrate,
+                   data_bitrate=config.data_bitrate if config.fd else None, listen_only=config.listen_only,
+                   where=config.describe())
+    if interface == "socketcand":
         _probe_socketcand(config, probe_timeout_s)
         logging.getLogger(_SOCKETCAND_LOGGER).addFilter(_socketcand_filter)  # idempotent
         if os.name != "nt":
@@ -375,7 +478,18 @@ def open_bus(config: CanBusConfig, *, probe_timeout_s: float = 1.0) -> can.BusAB
             kwargs.setdefault("tcp_tune", True)
     try:
         return can.Bus(interface=config.interface, channel=config.channel, **kwargs)
-    except (can.CanError, OSError, ImportError, ValueError, TypeError) as exc:
+    except TypeError as exc:
+        rejected = _UNEXPECTED_KEY.search(str(exc))
+        key = rejected.group(1) if rejected else None
+        if key is not None:
+            raise ConfigError(f"can {config.name!r}.options.{key}: python-can's {config.interface!r} interface "
+                              f"does not take {key!r} ({exc})") from exc
+        raise DeviceError(f"{config.describe()}: cannot open: {exc}") from exc
+    except ValueError as exc:
+        given = ", ".join(sorted(config.options)) or "none given"
+        raise DeviceError(f"{config.describe()}: python-can's {config.interface!r} interface refused its settings "
+                          f"(options: {given}): {exc}") from exc
+    except (can.CanError, OSError, ImportError) as exc:
         raise DeviceError(f"{config.describe()}: cannot open: {exc}") from exc
 
 
@@ -677,63 +791,18 @@ class BusLoadMeter:
         return rate, error_rate, busy
 
 
-# --- SocketCAN error-frame classes (linux/can/error.h), also forwarded by socketcand -----------
-
-_CAN_ERR_CRTL = 0x004
-_CAN_ERR_BUSOFF = 0x040
-_CAN_ERR_RESTARTED = 0x100
-_CAN_ERR_CNT = 0x200  # data[6] = TX error counter, data[7] = RX error counter
-_CAN_ERR_CRTL_WARNING = 0x04 | 0x08
-_CAN_ERR_CRTL_PASSIVE = 0x10 | 0x20
-_CAN_ERR_CRTL_ACTIVE = 0x40
-
-
-def state_from_error_frame(msg: can.Message) -> BusState | None:
-    """Controller state that a SocketCAN-style error frame announces (None if it announces none)."""
-    cls = msg.arbitration_id
-    if cls & _CAN_ERR_BUSOFF:
-        return BusState.BUS_OFF
-    if cls & _CAN_ERR_RESTARTED:
-        return BusState.ACTIVE
-    if cls & _CAN_ERR_CRTL and len(msg.data) > 1:
-        status = msg.data[1]
-        if status & _CAN_ERR_CRTL_PASSIVE:
-            return BusState.PASSIVE
-        if status & _CAN_ERR_CRTL_WARNING:
-            return BusState.WARNING
-        if status & _CAN_ERR_CRTL_ACTIVE:
-            return BusState.ACTIVE
-    return None
-
-
-def error_counters_from_error_frame(msg: can.Message) -> tuple[int, int] | None:
-    """``(TEC, REC)`` reported by a SocketCAN-style error frame (None if it carries no counters)."""
-    if msg.arbitration_id & _CAN_ERR_CNT and len(msg.data) >= 8:
-        return int(msg.data[6]), int(msg.data[7])
-    return None
-
-
-def _state_from_python_can(bus: can.BusABC) -> BusState | None:
-    """``bus.state`` mapped to :class:`BusState`, or None where the interface does not report it."""
-    if type(bus).state is can.BusABC.state:
-        return None  # the base class answers ACTIVE unconditionally: that says nothing
-    try:
-        state = bus.state
-    except (can.CanError, OSError, NotImplementedError):
-        return None
-    return {
-        can.BusState.ACTIVE: BusState.ACTIVE,
-        can.BusState.PASSIVE: BusState.PASSIVE,
-        can.BusState.ERROR: BusState.BUS_OFF,
-    }.get(state)
-
-
 class _LostError(Exception):
-    """Internal: the interface is to be closed and reopened for ``reason``."""
+    """Internal: the interface is to be closed and reopened for ``reason``.
 
-    def __init__(self, reason: str) -> None:
+    ``start_ns`` is when the loss began if earlier than now (a bus-off that did not restart in
+    time); ``announced`` when its :class:`BusLost` was already reported.
+    """
+
+    def __init__(self, reason: str, *, start_ns: int | None = None, announced: bool = False) -> None:
         super().__init__(reason)
         self.reason = reason
+        self.start_ns = start_ns
+        self.announced = announced
 
 
 # --- the session -------------------------------------------------------------------------------
@@ -748,10 +817,18 @@ class CanBusLink:
     callback raises, the session stops, closes the bus and keeps the exception in
     :attr:`failure` (the reader never swallows a consumer's error silently).
 
-    Recovery: a ``can.CanError`` or ``OSError`` from ``recv``, a bus-off state, or (when
-    ``silence_timeout_s`` is set) no frame for that long, closes the interface; it is reopened
-    after a back-off that doubles from ``backoff_initial_s`` to ``backoff_max_s`` and waits on the
-    stop event. The span is reported as one :class:`BusGap`.
+    The link only reads: a config with ``listen_only`` None is opened listen-only (where the
+    interface can be; :mod:`drivers.can.interfaces`). The controller's state comes from the
+    interface's :class:`~drivers.can.controller.ControllerMonitor` (error frames, status polls every
+    ``state_poll_s``, the state behind a failed ``recv``).
+
+    Recovery: a ``can.CanError`` or ``OSError`` from ``recv`` (unless the interface says it is only
+    error warning or passive), a bus-off state, or (when ``silence_timeout_s`` is set) no frame for
+    that long, closes the interface; it is reopened after a back-off that doubles from
+    ``backoff_initial_s`` to ``backoff_max_s`` and waits on the stop event. A bus-off on an
+    interface whose controller restarts by itself (SocketCAN's ``restart-ms``; socketcand and the
+    virtual bus report it the same way) is waited for instead, up to ``busoff_restart_s``, before
+    falling back to a reopen. Either way the span is reported as one :class:`BusGap`.
 
     ``bus_factory`` opens the interface (default :func:`open_bus`); tests pass a fault-injecting one.
     """
@@ -771,11 +848,15 @@ class CanBusLink:
         stats_window_s: float = 1.0,
         stats_period_s: float | None = 1.0,
         state_poll_s: float = 0.5,
+        busoff_restart_s: float = 1.0,
+        controller: ControllerMonitor | None = None,
     ) -> None:
         if recv_timeout_s <= 0 or backoff_initial_s <= 0 or backoff_max_s < backoff_initial_s:
             raise ConfigError(
                 f"{config.describe()}: need recv_timeout_s > 0 and 0 < backoff_initial_s <= backoff_max_s"
             )
+        if config.listen_only is None:
+            config = dataclasses.replace(config, listen_only=True)
         self.config = config
         self._on_frame = on_frame
         self._on_event = on_event
@@ -787,8 +868,12 @@ class CanBusLink:
         self._silence_ns = None if silence_timeout_s is None else int(silence_timeout_s * 1e9)
         self._stats_period_ns = None if stats_period_s is None else int(stats_period_s * 1e9)
         self._state_poll_ns = int(state_poll_s * 1e9)
+        self._busoff_restart_ns = int(busoff_restart_s * 1e9)
         self._source = config.clock
+        self._use_device_time = config.uses_interface_stamps
         self._channel = str(config.channel)
+        self._monitor = controller or controller_monitor_for(config.interface)
+        self._notes = bus_notes(config)
 
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -801,6 +886,9 @@ class CanBusLink:
         self._gaps_total = 0
         self._last_frame_ns: int | None = None
         self._counters: tuple[int, int] | None = None
+        self._busoff_since: int | None = None
+        """Host time the controller went bus-off while the interface stays open for its restart."""
+        self._busoff_last_frame: int | None = None
         self._failure: BaseException | None = None
         self.stopped = threading.Event()
         """Set when the reader thread has finished (after ``stop()`` or a consumer failure)."""
@@ -813,6 +901,7 @@ class CanBusLink:
         Raises:
             DeviceError: the first open fails (misconfiguration shows at once; failures after a
                 successful start are recovered instead).
+            ConfigError: python-can refused an option.
             RuntimeError: already started.
         """
         if self._thread is not None:
@@ -859,7 +948,7 @@ class CanBusLink:
 
     @property
     def bus(self) -> can.BusABC | None:
-        """The open python-can bus (None while disconnected); for sending, not for reading."""
+        """The open python-can bus (None while disconnected)."""
         return self._bus
 
     def stats(self) -> BusStats:
@@ -910,9 +999,19 @@ class CanBusLink:
             log.info("%s: state %s -> %s", self.config.describe(), previous.value, state.value)
             self._emit(BusStateChanged(now_ns, self.config.name, previous, state))
 
+    def _report(self, report: ControllerReport, now_ns: int) -> None:
+        """Take in what the controller reported: its counters, and its state when it said one."""
+        counters = report.counters
+        if counters is not None:
+            with self._lock:
+                self._counters = counters
+        if report.state is not None:
+            self._set_state(report.state, now_ns)
+
     def _open(self) -> None:
         bus = self._factory(self.config)
         self._bus = bus
+        self._monitor.attach(bus)
         now = self._clock.now_ns()
         with self._lock:
             self._meter.reset()
@@ -924,13 +1023,19 @@ class CanBusLink:
                 channel=str(self.config.channel),
                 channel_info=str(getattr(bus, "channel_info", "")),
                 timestamp_source=self._source,
+                frame_time=self.config.time_from,
+                listen_only=self.config.listen_only,
+                notes=self._notes,
             )
         )
-        reported = _state_from_python_can(bus)
-        if reported is BusState.BUS_OFF:
+        report = self._monitor.poll(bus)
+        if report is not None and report.state is BusState.BUS_OFF:
             self._close()
             raise _LostError("controller still bus-off after reopening")
-        self._set_state(reported or BusState.UNKNOWN, now)
+        if report is not None and report.state is not None:
+            self._report(report, now)
+        else:
+            self._set_state(BusState.UNKNOWN, now)
 
     def _close(self) -> None:
         bus, self._bus = self._bus, None
@@ -945,6 +1050,7 @@ class CanBusLink:
     def _run(self) -> None:
         try:
             self._read_loop()
+            self._end_bus_off(self._clock.now_ns(), recovered=False)
         except BaseException as exc:  # a consumer callback failed: stop, and keep it for the owner
             log.exception("%s: reader stopped by an error", self.config.describe())
             self._failure = exc
@@ -957,6 +1063,7 @@ class CanBusLink:
     def _read_loop(self) -> None:
         next_stats = next_state_poll = self._clock.now_ns()
         last_rx = next_stats
+        monitor = self._monitor
         while not self._stop.is_set():
             bus = self._bus
             if bus is None:
@@ -965,28 +1072,71 @@ class CanBusLink:
                 try:
                     msg = bus.recv(timeout=self._recv_timeout_s)
                 except (can.CanError, OSError) as exc:
-                    raise _LostError(f"receive failed: {exc}") from exc
+                    report = monitor.on_receive_error(bus, exc)
+                    if report is None or report.state in (None, BusState.ACTIVE, BusState.UNKNOWN):
+                        raise _LostError(f"receive failed: {exc}") from exc
+                    self._report(report, self._clock.now_ns())
+                    msg = None
+                    if report.state is not BusState.BUS_OFF:
+                        # error warning or passive: reading goes on, without spinning on a failing recv
+                        self._stop.wait(self._recv_timeout_s)
                 now = self._clock.now_ns()
                 if msg is not None:
                     last_rx = now
                     self._deliver(msg, now)
-                elif self._silence_ns is not None and now - last_rx > self._silence_ns:
+                elif (self._silence_ns is not None and self._busoff_since is None
+                      and now - last_rx > self._silence_ns):
                     raise _LostError(f"no frame for {self._silence_ns / 1e9:.1f} s")
                 if now >= next_state_poll:
                     next_state_poll = now + self._state_poll_ns
-                    reported = _state_from_python_can(bus)
-                    if reported is not None:
-                        self._set_state(reported, now)
-                if self._state is BusState.BUS_OFF:  # this thread's own read: no lock per frame
-                    raise _LostError("controller is bus-off")
+                    report = monitor.poll(bus)
+                    if report is not None:
+                        self._report(report, now)
+                self._check_bus_off(now)
             except _LostError as lost:
-                if not self._recover(lost.reason):
+                if not self._recover(lost.reason, start_ns=lost.start_ns, announced=lost.announced):
                     return
                 last_rx = next_state_poll = self._clock.now_ns()
                 continue
             if self._stats_period_ns is not None and now >= next_stats:
                 next_stats = now + self._stats_period_ns
                 self._emit(self.stats())
+
+    def _check_bus_off(self, now_ns: int) -> None:
+        """Start, wait out or end a bus-off (this thread's own state: read without the lock).
+
+        Raises:
+            _LostError: bus-off on an interface reopened to restart it, or no restart in time.
+        """
+        state = self._state
+        since = self._busoff_since
+        if state is BusState.BUS_OFF:
+            if since is None:
+                self._busoff_since = now_ns
+                with self._lock:
+                    self._busoff_last_frame = self._last_frame_ns
+                if not self._monitor.restarts_itself:
+                    raise _LostError("controller is bus-off")
+                log.warning("%s: controller bus-off; waiting for its restart", self.config.describe())
+                self._emit(BusLost(now_ns, self.config.name, "controller is bus-off"))
+            elif now_ns - since > self._busoff_restart_ns:
+                raise _LostError(
+                    f"controller is bus-off and did not restart within {self._busoff_restart_ns / 1e9:g} s "
+                    "(SocketCAN: is restart-ms set?)", start_ns=since, announced=True)
+        elif since is not None and state is not BusState.DISCONNECTED:
+            self._end_bus_off(now_ns, recovered=True)
+
+    def _end_bus_off(self, now_ns: int, *, recovered: bool) -> None:
+        """Report the gap of a bus-off waited out with the interface open (nothing if there is none)."""
+        since, self._busoff_since = self._busoff_since, None
+        if since is None:
+            return
+        with self._lock:
+            self._gaps_total += 1
+            last = self._busoff_last_frame
+        if recovered:
+            log.info("%s: controller back from bus-off", self.config.describe())
+        self._emit(BusGap(since, now_ns, self.config.name, "controller is bus-off", 0, recovered, last))
 
     def _deliver(self, msg: can.Message, now_ns: int) -> None:
         # Runs for every frame on the bus (8000/s at full load on 1 Mbit/s): no enum arithmetic in
@@ -1019,7 +1169,7 @@ class CanBusLink:
             self._frames_total += 1
             self._errors_total += is_error
             self._last_frame_ns = now_ns
-            t_meter = device_ns if device_ns is not None else now_ns
+            t_meter = device_ns if device_ns is not None and self._use_device_time else now_ns
             if is_error or self.config.bitrate is None:
                 # error reports carry no bus time of their own (the destroyed frame is unknown)
                 self._meter.add(t_meter, 0.0, is_error)
@@ -1029,24 +1179,26 @@ class CanBusLink:
             else:
                 self._meter.add_frame(t_meter, (arbitration_id, is_extended, data, dlc, False, False, False))
         if is_error:
-            counters = error_counters_from_error_frame(msg)
-            if counters is not None:
-                with self._lock:
-                    self._counters = counters
-            announced = state_from_error_frame(msg)
-            if announced is not None:
-                self._set_state(announced, now_ns)
+            report = self._monitor.from_error_frame(msg)
+            if report is not None:
+                self._report(report, now_ns)
+        elif self._busoff_since is not None and msg.is_rx:
+            # a frame received: the controller is back on the bus, whether or not its restart was reported
+            self._set_state(BusState.ACTIVE, now_ns)
         self._on_frame(frame)
 
-    def _recover(self, reason: str) -> bool:
+    def _recover(self, reason: str, *, start_ns: int | None = None, announced: bool = False) -> bool:
         """Close, back off and reopen until open or stopped; report the gap. False when stopped."""
-        start = self._clock.now_ns()
+        now = self._clock.now_ns()
+        start = now if start_ns is None else start_ns
         log.warning("%s: lost (%s); reopening", self.config.describe(), reason)
         self._close()
         with self._lock:
-            last_frame = self._last_frame_ns
-        self._emit(BusLost(start, self.config.name, reason))
-        self._set_state(BusState.DISCONNECTED, start)
+            last_frame = self._last_frame_ns if start_ns is None else self._busoff_last_frame
+        self._busoff_since = None
+        if not announced:
+            self._emit(BusLost(start, self.config.name, reason))
+        self._set_state(BusState.DISCONNECTED, now)
         delay = self._backoff_initial_s
         attempts = 0
         recovered = False

@@ -93,10 +93,23 @@ def monitor(
     port: Annotated[int | None, typer.Option("--port", help="socketcand server port.")] = None,
     dbc: Annotated[Path | None, typer.Option("--dbc", help="DBC to decode roles with (with --roles).")] = None,
     roles: Annotated[Path | None, typer.Option("--roles", help="Roles file: show each role's latest value.")] = None,
+    option: Annotated[
+        list[str] | None,
+        typer.Option("--option", help="python-can interface option KEY=VALUE (repeatable; TOML value), e.g. "
+                     "app_name=vsc-rig; added to the [[can]] options of --config."),
+    ] = None,
+    active: Annotated[
+        bool,
+        typer.Option("--active", help="Open the interface acknowledging frames (default: listen-only where it "
+                     "can be, or as listen_only in --config says)."),
+    ] = False,
     duration: Annotated[float | None, typer.Option("--duration", help="Stop after this many seconds.")] = None,
     interval: Annotated[float, typer.Option("--interval", help="Seconds between status lines.")] = 1.0,
 ) -> None:
-    """Watch a live CAN bus: frames/s, bus load, controller state, error frames, gaps and role values."""
+    """Watch a live CAN bus: frames/s, bus load, controller state, error frames, gaps and role values.
+
+    The monitor never transmits: it opens the bus listen-only unless --active (or listen_only = false).
+    """
     import queue
     import threading
     import time
@@ -104,9 +117,17 @@ def monitor(
     from drivers.can.bus import BusEvent, BusStats, CanBusConfig, CanBusLink, CanFrame, CanFrameFlag
     from drivers.can.checks import FrameFlag
     from drivers.can.roles import RoleDecoder
+    from rig.core.config import parse_override
     from rig.data.can_log import load_roles
     from vsccore.clock import SystemClock
 
+    options: dict[str, object] = {}
+    for item in option or []:
+        key, value = parse_override(item)
+        if not key:
+            raise ConfigError(f"rig can monitor: --option {item!r} is not KEY=VALUE")
+        options[key] = value
+    listen_only = False if active else None
     decoder: RoleDecoder | None = None
     if config is not None:
         from rig.core.config import load_session
@@ -121,7 +142,8 @@ def monitor(
             raise ConfigError(f"{config}: no [[can]] bus named {bus!r} (have: {', '.join(buses)})")
         can_cfg = buses[bus] if bus is not None else session_cfg.can[0]
         bus_cfg = CanBusConfig.from_mapping(
-            can_cfg.model_dump(), interface=interface, channel=channel, host=host, port=port
+            can_cfg.model_dump(), interface=interface, channel=channel, host=host, port=port,
+            options={**can_cfg.options, **options} if options else None, listen_only=listen_only,
         )
         if can_cfg.roles:
             db, rolemap = load_roles(config, dbc, can_cfg.name)
@@ -129,7 +151,8 @@ def monitor(
     else:
         if interface is None or channel is None:
             raise ConfigError("rig can monitor: give --config FILE, or --interface and --channel")
-        given = {"interface": interface, "channel": channel, "bitrate": bitrate, "host": host, "port": port}
+        given = {"interface": interface, "channel": channel, "bitrate": bitrate, "host": host, "port": port,
+                 "options": options, "listen_only": listen_only}
         bus_cfg = CanBusConfig.from_mapping({**given, "name": channel})
     if roles is not None:
         db, rolemap = load_roles(roles, dbc, bus)
@@ -206,7 +229,11 @@ def _event_text(event: object) -> str:
     if isinstance(event, BusLost):
         return f"lost: {event.reason}"
     if isinstance(event, BusOpened):
-        return f"opened {event.interface} {event.channel} ({event.timestamp_source.value} timestamps)"
+        times = (f"{event.timestamp_source.value} timestamps" if event.frame_time.value == "interface"
+                 else "host receive times")
+        mode = {True: ", listen-only", False: ", active", None: ""}[event.listen_only]
+        return f"opened {event.interface} {event.channel} ({times}{mode})" + "".join(
+            f"\n  note: {note}" for note in event.notes)
     if isinstance(event, BusStateChanged):
         return f"state {event.previous.value} -> {event.state.value}"
     return repr(event)

@@ -514,8 +514,11 @@ class CanCheckConfig(_Model):
     algorithm: str = "none"
 
 
+SamplePoint = Annotated[float, Field(ge=0.5, lt=1.0)]
+
+
 class CanConfig(_Model):
-    """One CAN bus through python-can."""
+    """One CAN bus through python-can (docs/can.md: keys, listen-only rule, timestamp source)."""
 
     name: str = "vsc"
     interface: str = "virtual"
@@ -525,10 +528,35 @@ class CanConfig(_Model):
     data_bitrate: Annotated[int, Field(gt=0)] | None = None
     host: str | None = None
     port: Annotated[int, Field(gt=0, lt=65536)] | None = None
+    options: dict[str, Any] = Field(default_factory=dict)
+    """Passed to ``can.Bus`` as keyword arguments, checked against what the interface takes."""
+    listen_only: bool | None = None
+    """Unset: the recorder and ``rig can monitor`` open the bus listen-only where the interface can be
+    (they never transmit); ``rig replay`` opens it active. False: record from an acknowledging interface."""
+    timestamp_source: Literal["interface", "host"] | None = None
+    """Whether the interface's stamps or the host receive times place frames in time (unset: per interface)."""
+    sample_point: SamplePoint | None = None
+    """Nominal sample point (fraction) where the rig derives a timing (PCAN FD; default 0.80)."""
+    data_sample_point: SamplePoint | None = None
+    """Data-phase sample point (fraction) where the rig derives a timing (PCAN FD; default 0.75)."""
     dbc: Path
     roles_file: Path | None = None
     roles: dict[str, CanRoleConfig] = Field(default_factory=dict)
     checks: dict[str, CanCheckConfig] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _python_can(self) -> Self:
+        if self.data_bitrate is not None and not self.fd:
+            raise ValueError("data_bitrate given but fd is false")
+        if self.options or (self.fd and self.interface.lower() == "pcan"):
+            # python-can specifics: the options the interface takes, a PCAN FD timing (the drivers are
+            # imported only for these tables, so that other configurations load fast)
+            from drivers.can.bus import CanBusConfig
+
+            CanBusConfig.from_mapping(self.model_dump(include={
+                "name", "interface", "channel", "bitrate", "fd", "data_bitrate", "host", "port", "options",
+                "listen_only", "timestamp_source", "sample_point", "data_sample_point"}))
+        return self
 
 
 class DaqChannelConfig(_Model):

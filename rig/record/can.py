@@ -24,6 +24,7 @@ from drivers.can.bus import (
     CanBusLink,
     CanFrame,
     CanFrameFlag,
+    FrameTime,
     open_bus,
 )
 from drivers.can.checks import FrameFlag
@@ -41,33 +42,12 @@ log = logging.getLogger(__name__)
 
 
 _CAN_BLOCK_FRAMES = 256
-
-
-_CAN_BLOCK_FRAMES = 256
-_RX = int(T.CanFlag.RX)
-
-
 _RX = int(T.CanFlag.RX)
 _EXTENDED = int(T.CanFlag.EXTENDED)
-
-
-_EXTENDED = int(T.CanFlag.EXTENDED)
-_FD = int(T.CanFlag.FD)
-
-
 _FD = int(T.CanFlag.FD)
 _NOT_DATA = CanFrameFlag.ERROR_FRAME | CanFrameFlag.REMOTE
-
-
-_NOT_DATA = CanFrameFlag.ERROR_FRAME | CanFrameFlag.REMOTE
-CAN_BLOCK_AGE_NS = 100_000_000
-
-
 CAN_BLOCK_AGE_NS = 100_000_000
 _CAN_FLAGS: dict[int, T.CanFlag] = {}
-"""``CanFlag(bits)`` by bits: an enum construction per frame is a measurable share of the CAN thread."""
-
-
 """``CanFlag(bits)`` by bits: an enum construction per frame is a measurable share of the CAN thread."""
 _FLAG_NAMES: dict[int, list[str]] = {}
 """``FrameFlag(bits).names()`` by bits (copied on use: the lists go into records)."""
@@ -91,6 +71,8 @@ class CanDevice(Device):
             rolemap = RoleMap.from_mapping(roles_table(cc), db, source=f"can.{cc.name}")
             self.decoder = RoleDecoder(db, rolemap)
         config = CanBusConfig.from_mapping(cc.model_dump(exclude={"dbc", "roles_file", "roles", "checks"}))
+        self._interface_stamps = config.uses_interface_stamps
+        """Interface stamps place the frames in time (``timestamp_source``); else the host receive times do."""
         self.bus = CanBusLink(config, self._on_frame, self._on_event, clock=ctx.clock,
                                  bus_factory=bus_factory or open_bus,
                                  backoff_initial_s=ctx.reconnect.first_s, backoff_max_s=ctx.reconnect.max_s)
@@ -101,6 +83,7 @@ class CanDevice(Device):
         self._pending_t = 0
         self.started = False
         self._next_try = 0.0
+        self._noted = False
 
     def start(self) -> None:
         """Open the bus (a failure is an event; the session keeps retrying)."""
@@ -147,9 +130,10 @@ class CanDevice(Device):
             can_flags = _CAN_FLAGS.setdefault(flags, T.CanFlag(flags))
         rec = T.CanFrameRecord(f.device_ts_ns, f.host_ts_ns, f.arbitration_id, can_flags, f.dlc, f.data)
         tb = s.timebase
-        if f.device_ts_ns is not None:  # every stamped frame feeds the interface clock's estimate
+        if f.device_ts_ns is not None and self._interface_stamps:  # feeds the interface clock's estimate
             t = tb.device_to_utc(self.clock_name, f.device_ts_ns, f.host_ts_ns)
-        else:  # host receive times: the host → GPS map, which must not run back either
+        else:  # host receive times (no stamp, or timestamp_source = "host"): the host → GPS map, which
+            # must not run back either; the interface's stamp stays in the record as its device time
             t = tb.live_host_to_utc(self._host_channel, f.host_ts_ns)
         with self._lock:
             if not self._pending:
@@ -214,8 +198,16 @@ class CanDevice(Device):
                          f"{ev.state.value}")
         elif isinstance(ev, BusOpened):
             board.update(self.name, state=DeviceState.OK)
-            self.event(EventKind.CONNECT, f"{ev.interface} {ev.channel} open ({ev.timestamp_source.value} stamps)",
-                       host_ns=ev.host_ts_ns, channel_info=ev.channel_info)
+            times = (f"{ev.timestamp_source.value} stamps" if ev.frame_time is FrameTime.INTERFACE
+                     else f"host receive times; {ev.timestamp_source.value} stamps kept")
+            mode = {True: ", listen-only", False: ", active", None: ""}[ev.listen_only]
+            self.event(EventKind.CONNECT, f"{ev.interface} {ev.channel} open ({times}{mode})",
+                       host_ns=ev.host_ts_ns, channel_info=ev.channel_info, timestamp_source=ev.frame_time.value,
+                       listen_only=ev.listen_only)
+            if not self._noted:  # the same on every reopen: once is enough
+                self._noted = True
+                for note in ev.notes:
+                    self.event(EventKind.WARNING, note, severity=Severity.WARNING, host_ns=ev.host_ts_ns)
         elif isinstance(ev, BusLost):
             board.update(self.name, state=DeviceState.LOST)
             self.event(EventKind.DISCONNECT, ev.reason, severity=Severity.WARNING, host_ns=ev.host_ts_ns)
