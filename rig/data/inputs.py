@@ -878,8 +878,9 @@ _GNSS_LOGS = frozenset(f("r").rsplit("/", 1)[1] for f in (T.gnss_bestpos, T.gnss
 
 def _bounded_topics(*, optical: bool, truth: bool) -> Callable[[str], bool]:
     """The topics ``load_inputs(bounded_memory=True)`` reads into its session: every receiver's decoded GNSS logs
-    (the rovers' fixes, the leap seconds and the host clock come from them), the events, and the optical sensors'
-    topics and DAQ blocks (``optical``) and the simulator's truth (``truth``). Left out: the CAN frames (read
+    (the rovers' fixes, the leap seconds and the host clock come from them), the events, the DAQ blocks (their sync
+    pulse measures the receivers' output latency), the optical sensors' topics (``optical``) and the simulator's
+    truth (``truth``). Left out: the CAN frames (read
     streamed), the raw bytes, LocationFix, the relay and anything else the series do not use."""
     opt_prefix = T.optical("s").removesuffix("s")
     daq_prefix = T.daq_samples("d").split("/d/", 1)[0] + "/"
@@ -889,7 +890,9 @@ def _bounded_topics(*, optical: bool, truth: bool) -> Callable[[str], bool]:
             return True
         if topic.startswith("/gnss/") and topic.count("/") == 3:
             return topic.rsplit("/", 1)[1] in _GNSS_LOGS
-        if topic.startswith((opt_prefix, daq_prefix)):
+        if topic.startswith(daq_prefix):
+            return True  # the sync pulse measures the receivers' output latency (Session.measured_output_latency)
+        if topic.startswith(opt_prefix):
             return optical
         return truth and topic == T.TOPIC_SIM_TRUTH
 

@@ -145,6 +145,10 @@ def write_truth_session(
     db = load_dbc(DBC)
     rolemap = RoleMap.from_toml(ROLES, db)
     profile = cfg.profile
+    # the receivers' logs below leave 20 ms after their epoch, stated per receiver (the file has no DAQ sync
+    # to measure it from)
+    cfg = cfg.model_copy(update={"receivers": tuple(r.model_copy(update={"output_latency_s": 0.02})
+                                                    for r in cfg.receivers)})
     meta = session_metadata(
         session=cfg.model_dump(mode="json"),
         vehicle={"vehicle": profile.vehicle.model_dump(mode="json"),
