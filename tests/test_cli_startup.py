@@ -23,7 +23,7 @@ HEAVY = ("scipy", "matplotlib", "statsmodels", "mcap", "cantools", "can", "numpy
 
 COMMANDS = ("sim", "gnss", "config", "can", "demo", "relay", "recover", "record", "info", "export",
             "calibrate-baseline", "calibrate-steering-ratio", "calibrate-imu", "steering-ratio", "steering",
-            "validate", "rollover", "layout", "replay", "campaign", "ppk")
+            "validate", "rollover", "layout", "replay", "campaign", "ppk", "preflight")
 """Every command and command group of ``rig`` (README "Command tour")."""
 
 

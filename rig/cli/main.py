@@ -54,6 +54,8 @@ COMMANDS: tuple[Command, ...] = (
             "its last complete record. Also removes the disk-space reserve a killed recorder left beside it."),
     Command("layout", "rig.cli.layout_cmd", "layout",
             "Write the Foxglove layout (import it in Foxglove: Layouts → Import from file)."),
+    Command("preflight", "rig.cli.preflight_cmd", "preflight",
+            "Check every device of CONFIG before the first run: GO / NO-GO per device with the reason and the fix."),
     Command("record", "rig.cli.record_cmd", "record",
             "Record every device of CONFIG (receivers, correction relay, CAN, DAQ) into one MCAP session file "
             "until Ctrl-C, SIGTERM or --duration."),

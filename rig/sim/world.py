@@ -79,7 +79,6 @@ from sim_devices.gnss import (
     SolutionNoise,
     SyncSchedule,
 )
-from sim_devices.gnss.geoid import egm96_undulation_m
 from sim_devices.gnss.receiver import LATENCY_RANGE_S
 from sim_devices.socketcand import SocketcandServer, virtual_channel_opener
 from sim_devices.vehicle import Drive, GroundTruth, Scenario, VehicleParams, demo_drive, make_scenario, simulate
@@ -550,11 +549,10 @@ class SimWorld:
         seed = self.sim.seed * 101 + len(self.receivers) * 13
         rx: SimReceiver
         if rc.role == "base":
-            # the base antenna stands where its surveyed position says (the fix is the truth here); the
-            # configuration says how to read its height, the twin's own EGM96 geoid turns MSL into ellipsoidal
+            # the base antenna stands where the survey put it: the simulated car's fix_position is its true
+            # position, height above the ellipsoid. fix_height only says how the rig tells the receiver to read
+            # it, so fix_height = "msl" here is the 48 m mistake of a real day (the base flags its fix)
             lat, lon, h = rc.fix_position or (self.sim.origin_lat_deg, self.sim.origin_lon_deg, self.sim.origin_h_m)
-            if rc.fix_position is not None and rc.fix_height == "msl":
-                h += egm96_undulation_m(lat, lon)
             rx = SimBase(
                 name, position=(lat, lon, h), timebase=self.timebase, clock=clock,
                 port_name=rc.command_port, link_dir=link_dir, baud=rc.baud, output_latency_s=g.output_latency_s,
