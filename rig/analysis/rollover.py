@@ -48,9 +48,8 @@ every ``refit_every_s`` and iterated forward 1, 2 and 3 s. Three models:
   propagated from each epoch over the horizon with the steering held and the driver's longitudinal
   force held; the offset between the measured and the model LTR at the epoch is added, fading with
   ``BIAS_TIME_S``. It is the held-steering floor below computed with the profile's vehicle instead of
-  the true one. On the study's J-turns: 1.6 / 2.4 / 3.9 % (published AR 4.3 / 6.2 / 10.3 %; ARX
-  6.3 / 8.7 / 12.8 %; floor 1.1 / 1.6 / 2.5 %); on the fishhooks within 3 % of the floor and better
-  than persistence at every horizon.
+  the true one: close to that floor and better than the AR and ARX models at every horizon
+  (``benchmarks/study_rollover_prediction.py`` prints the figures).
 
 A fit with a root at or beyond ``_MAX_ROOT`` is rejected in favour of holding the current value
 until the next refit. Predictions are clipped to [−1, 1], the physical range.
