@@ -662,12 +662,28 @@ class Session:
         the DAQ's prompt delivery (a lower bound; tens of µs on a USB DAQ).
         """
         daq_cfg = self.config.get("daq")
+        device = daq_cfg.get("device") if isinstance(daq_cfg, Mapping) else None
+        if not isinstance(device, str):
+            return None, "no DAQ"
+        bound, why = self.daq_causality_ns(device, raw=True)
+        return (None, why) if bound is None else (round(bound), "")
+
+    def daq_causality_ns(self, device: str, *, raw: bool = False) -> tuple[float | None, str]:
+        """How early the host → GPS map puts ``device``'s blocks (ns; None: not judged) and why not.
+
+        Each block's last sample is timed by the sync pulse against MARKTIME/MARK1TIME (GPS time; the host
+        map does not enter), and the block cannot reach the host before that sample was taken: where its host
+        receive time, mapped to GPS time, lies earlier, the map is early by at least that much
+        (:func:`rig.core.timebase.causality_bound_ns`). Only blocks whose segment is synchronised count.
+        ``raw``: through the map fitted without any unconfigured output latency (:attr:`measured_output_latency`),
+        else through :attr:`host_clock`.
+        """
+        daq_cfg = self.config.get("daq")
         if not isinstance(daq_cfg, Mapping) or not daq_cfg.get("sync_channel"):
-            return None, "no DAQ sync channel"
-        device = daq_cfg.get("device")
-        if not isinstance(device, str) or device not in self.daq_devices():
-            return None, "no DAQ samples"
-        est = self._raw_host_clock
+            return None, "no sync channel"
+        if daq_cfg.get("device") not in (None, device) or device not in self.daq_devices():
+            return None, "not the configured DAQ"
+        est = self._raw_host_clock if raw else self.host_clock
         if est is None or self.leap_seconds is None:
             return None, "no host → GPS map"
         marks = [r for r in self.receivers() if len(self.gnss(r).marktime) or len(self.gnss(r).markpos)]
@@ -677,18 +693,16 @@ class Session:
             d = self.daq(device, sync_channel=str(daq_cfg["sync_channel"]), receiver=marks[0])
             _first, last, host = self.daq_blocks(device)
         except RigError as exc:
-            return None, f"DAQ not aligned ({exc})"
+            return None, f"not judged ({exc})"
         if not len(d):
-            return None, "no DAQ samples"
+            return None, "no samples"
         pos = np.minimum(np.searchsorted(d.sample_index, last), len(d) - 1)
         ok = (d.sample_index[pos] == last) & d.synced[pos]
         if not ok.any():
-            return None, "no DAQ block timed by the sync pulse"
+            return None, "no block timed by the sync pulse"
         arrival = self.gps_to_utc(est.mapping().inverse_ns(host[ok]))
         bound = causality_bound_ns(d.time_ns[pos[ok]], arrival)
-        if bound is None:
-            return None, "too few synchronised DAQ blocks"
-        return round(bound), ""
+        return bound, "" if bound is not None else "too few blocks"
 
     def gnss_log_latency_ns(self, receiver: str, log_name: str, gps_ns: npt.ArrayLike) -> IntArray:
         """The known part of the latency of each ``log_name`` log (e.g. ``BESTPOS``) of ``receiver`` at

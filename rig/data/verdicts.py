@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 import weakref
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,7 +28,7 @@ from rig.core.quality import (
     timing_fix_text,
     verdict_lines,
 )
-from rig.core.timebase import ClockEstimator, causality_bound_ns
+from rig.core.timebase import ClockEstimator
 from rig.data.session import Session
 from vsccore.errors import RigError
 
@@ -190,39 +190,9 @@ def session_verdicts(ds: Session) -> dict[str, StreamQuality]:
 
 
 def daq_causality_ns(ds: Session, device: str) -> tuple[float | None, str]:
-    """The causality bound of the host → GPS map from ``device``'s blocks (ns; None: not judged) and why not.
-
-    Each block's last sample is timed by the sync pulse against MARKTIME (GPS time; the host map does
-    not enter), and the block cannot reach the host before that sample was taken: where its host receive
-    time, mapped to GPS time, lies earlier, the map is early by at least that much
-    (:func:`rig.core.timebase.causality_bound_ns`). Only blocks whose segment is synchronised count.
-    """
-    daq_cfg = ds.config.get("daq")
-    if not isinstance(daq_cfg, Mapping) or not daq_cfg.get("sync_channel"):
-        return None, "no sync channel"
-    if daq_cfg.get("device") not in (None, device):
-        return None, "not the configured DAQ"
-    if ds.host_clock is None or ds.leap_seconds is None:
-        return None, "no host → GPS map"
-    marks = [r for r in ds.receivers() if len(ds.gnss(r).marktime) or len(ds.gnss(r).markpos)]
-    if not marks:
-        return None, "no MARKTIME/MARKPOS"
-    try:
-        d = ds.daq(device, sync_channel=str(daq_cfg["sync_channel"]), receiver=marks[0])
-        _first, last, host = ds.daq_blocks(device)
-    except RigError as exc:
-        return None, f"not judged ({exc})"
-    if not len(d):
-        return None, "no samples"
-    pos = np.minimum(np.searchsorted(d.sample_index, last), len(d) - 1)
-    ok = (d.sample_index[pos] == last) & d.synced[pos]
-    if not ok.any():
-        return None, "no block timed by the sync pulse"
-    arrival, mapped = ds.host_to_utc(host[ok])
-    if not mapped:
-        return None, "host map not on GPS time"
-    b = causality_bound_ns(d.time_ns[pos[ok]], arrival)
-    return b, "" if b is not None else "too few blocks"
+    """The causality bound of the session's host → GPS map from ``device``'s blocks (ns; None: not judged) and
+    why not (:meth:`rig.data.session.Session.daq_causality_ns`)."""
+    return ds.daq_causality_ns(device)
 
 
 def _host_arrival_lag_ms(records: npt.NDArray[Any]) -> float:
