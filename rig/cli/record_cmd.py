@@ -217,7 +217,8 @@ def sim_record(
         list[str] | None,
         typer.Option("--fault", help="A fault to rehearse, KIND[:TARGET][@T0[..T1]] in s of drive time (repeatable): "
                      "corrections:RECEIVER@T0..T1 (correction cable pulled), reset:RECEIVER@T, "
-                     "unplug:RECEIVER@T0..T1, can-unplug@T0..T1, daq-unplug@T0..T1, daq-float:CHANNEL (open input). "
+                     "unplug:RECEIVER@T0..T1, can-unplug@T0..T1, can-bus-off@T0..T1, daq-unplug@T0..T1, "
+                     "daq-float:CHANNEL (open input). "
                      "The devices then run in this process."),
     ] = None,
 ) -> None:

@@ -254,6 +254,14 @@ class OpticalSensorConfig(_Model):
         roles = set(self.channels)
         if not (OpticalRole.SLIP_ANGLE in roles or {OpticalRole.VX, OpticalRole.VY} <= roles):
             raise ValueError("channels must include slip_angle, or both vx and vy")
+        on_can = sorted(str(r) for r, ch in self.channels.items() if ch.can_role is not None)
+        if on_can:
+            # refused rather than accepted and dropped: the recorder and the analysis read an optical sensor
+            # from the DAQ only (its CAN frames, on a [[can]] bus, are still recorded raw)
+            raise ValueError(
+                f"optical sensor {self.name!r}: channels {on_can} name a can_role, but a CAN-output Correvit is not "
+                "decoded into /optical yet (its frames are recorded raw on its [[can]] bus): wire its analog "
+                "outputs to the DAQ (daq_channel)")
         return self
 
 

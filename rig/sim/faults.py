@@ -1,7 +1,7 @@
 """Faults a road test meets, rehearsed on the simulated car (``rig sim record --fault``): a correction cable
 pulled for a span, a receiver reset, a receiver's port unplugged, the CAN adapter or the DAQ unplugged, a DAQ
-input left open. Each acts on the simulated devices exactly as the real fault does; the recording is told
-nothing and records what it sees."""
+input left open, the CAN bus driven bus-off. Each acts on the simulated devices exactly as the real fault does;
+the recording is told nothing and records what it sees."""
 
 from __future__ import annotations
 
@@ -28,11 +28,13 @@ class FaultKind(StrEnum):
     RESET = "reset"  # a receiver resets behind its open port (RECEIVER, an instant)
     UNPLUG = "unplug"  # a receiver's command port unplugged (RECEIVER, a span)
     CAN_UNPLUG = "can-unplug"  # the CAN adapter unplugged (a span)
+    CAN_BUS_OFF = "can-bus-off"  # the VSC bus driven bus-off (error warning, passive, bus-off, restart; a span)
     DAQ_UNPLUG = "daq-unplug"  # the DAQ unplugged (a span)
     DAQ_FLOAT = "daq-float"  # a DAQ input left open: noise and mains hum (CHANNEL, the whole session)
 
 
-_SPAN = frozenset({FaultKind.CORRECTIONS, FaultKind.UNPLUG, FaultKind.CAN_UNPLUG, FaultKind.DAQ_UNPLUG})
+_SPAN = frozenset({FaultKind.CORRECTIONS, FaultKind.UNPLUG, FaultKind.CAN_UNPLUG, FaultKind.CAN_BUS_OFF,
+                   FaultKind.DAQ_UNPLUG})
 _TARGETED = frozenset({FaultKind.CORRECTIONS, FaultKind.RESET, FaultKind.UNPLUG, FaultKind.DAQ_FLOAT})
 _TIME = r"[0-9]+(?:\.[0-9]+)?"
 _SPEC = re.compile(
@@ -114,6 +116,8 @@ def fault_actions(faults: list[SimFault], cfg: SessionConfig) -> list[Action]:
             out += [(f.t0_s, _unplug(name, None)), (_t1(f), _replug(name, None))]
         elif f.kind is FaultKind.RESET:
             out.append((f.t0_s, _reset(name)))
+        elif f.kind is FaultKind.CAN_BUS_OFF:
+            out.append((f.t0_s, _bus_off(_t1(f) - f.t0_s)))
         elif f.kind is FaultKind.CAN_UNPLUG:
             out += [(f.t0_s, lambda w, _s: w.can_link.unplug()), (_t1(f), lambda w, _s: w.can_link.replug())]
         elif f.kind is FaultKind.DAQ_UNPLUG:
@@ -141,4 +145,11 @@ def _replug(receiver: str, port: str | None) -> DeviceAction:
 def _reset(receiver: str) -> DeviceAction:
     def act(world: SimWorld, _s: Recording) -> None:
         world.receivers[receiver].reset()
+    return act
+
+
+def _bus_off(duration_s: float) -> DeviceAction:
+    def act(world: SimWorld, _s: Recording) -> None:
+        for ecu in world.ecus.values():
+            ecu.bus_off(duration_s)
     return act

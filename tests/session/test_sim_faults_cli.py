@@ -27,6 +27,7 @@ def faulty(tmp_path_factory: pytest.TempPathFactory) -> Path:
         "sim", "record", str(demo_config_path()), "--out", str(out), "--name", "f",
         "--drive", "straight:duration_s=40,speed_kmh=50", "--speed", "8", "--no-dashboard",
         "--fault", "corrections:rover_a@6..14", "--fault", "reset:rover_b@8", "--fault", "daq-float:p_mc",
+        "--fault", "can-bus-off@20..22",
     ])
     assert res.exit_code == 0, res.output
     return out / "f"
@@ -68,6 +69,17 @@ def test_an_open_daq_input_reads_noise_and_hum(faulty: Path) -> None:
     d = ds.daq("SimDAQ")
     v = d.volts[d.channel_names.index("p_mc")]
     assert v.std() > 0.2  # an open input: wide-band noise and mains hum, no pressure signal
+
+
+def test_a_bus_off_is_recorded_with_its_recovery(faulty: Path) -> None:
+    ds = load_session(faulty)
+    texts = [e.text for _t, e in ds.events if e.source.startswith("can")]
+    assert any("bus-off" in t.lower() or "bus_off" in t.lower() for t in texts), texts
+    t0 = ds.truth().time_ns[0]
+    frames = ds.can_frames("vsc")
+    t = (frames.time_ns - t0) / NS
+    assert not ((t > 20.2) & (t < 21.8)).any()  # silent while off the bus
+    assert ((t > 23) & (t < 24)).any()  # back after the restart
 
 
 @pytest.mark.parametrize(("spec", "match"), [

@@ -1,5 +1,5 @@
-"""The baud budget of a receiver's port in the configuration check: a log set the port cannot carry is refused
-(an OEM7 would drop logs and flag an overrun in RXSTATUS), one that leaves little margin is shown."""
+"""Configuration checks for the first road test: the baud budget of a receiver port (a log set the port cannot
+carry is refused: an OEM7 would drop logs and flag an overrun in RXSTATUS), and no device accepted and dropped."""
 
 from __future__ import annotations
 
@@ -34,3 +34,9 @@ def test_config_check_shows_each_ports_share(tmp_path: Path) -> None:
     assert res.exit_code == 0, res.output
     assert "receivers.rover_a: logs need ~33.2 of 46.1 kB/s at 460800 Bd (72 %)" in res.output
     assert "little margin" in res.output
+
+
+def test_a_can_output_optical_sensor_is_refused_with_the_reason_not_dropped() -> None:
+    """Before: a Correvit whose channels named CAN roles passed the check and was silently not recorded."""
+    with pytest.raises(ConfigError, match=r"optical sensor 'body'.*can_role.*not decoded into /optical"):
+        load_session(demo_config_path(), {"optical.0.channels.slip_angle": {"can_role": "correvit_angle"}})
