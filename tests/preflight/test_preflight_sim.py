@@ -190,3 +190,19 @@ def test_the_command_defaults_are_the_library_defaults() -> None:
 
     assert preflight_cmd.DEFAULT_WAIT_S == preflight.DEFAULT_WAIT_S
     assert preflight_cmd.DEFAULT_DURATION_MIN == preflight.DEFAULT_DURATION_MIN
+
+
+def test_a_receiver_on_usb_logs_to_the_laptop_and_logs_sent_to_com1_do_not(
+        capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    """A PwrPak7 on USB: the laptop is on the receiver's USB1. The rig's logs go to THISPORT, so they reach the
+    laptop (GO); logs requested on COM1 (what ``command_port = COM1`` used to send) go to the physical COM1 and
+    the laptop gets nothing (NO-GO naming the logs that do not arrive)."""
+    code, doc = _preflight(capsys, tmp_path, "--set", "receivers.1.command_port=USB1")
+    rover = _devices(doc)["rover_a"]
+    assert rover["verdict"] == "GO", rover["reason"]
+    code, doc = _preflight(capsys, tmp_path, "--set", "receivers.1.command_port=USB1", "--set",
+                           'receivers.1.extra_commands=["UNLOGALL THISPORT", "LOG COM1 BESTPOSB ONTIME 0.05"]')
+    assert code == 1
+    rover = _devices(doc)["rover_a"]
+    failed = [c for c in rover["checks"] if not c["ok"]]
+    assert rover["verdict"] != "GO" and any("BESTPOS" in c["detail"] for c in failed), failed
