@@ -238,12 +238,17 @@ class _RateMeter:
             times.popleft()
 
     def rates(self, now_ns: int) -> dict[str, float]:
+        """Per key: the intervals between the arrivals in the window over their span (a periodic stream's rate,
+        not biased low by the time since its last message in a short run); one arrival: 1 / its age."""
         out = {}
         cutoff = now_ns - self._window_ns
         for key, times in self._times.items():
-            n = sum(1 for t in times if t >= cutoff)
-            span = min(self._window_ns, now_ns - self._first[key])
-            out[key] = n / (span / 1e9) if span > 0 and n else 0.0
+            recent = [t for t in times if t >= cutoff]
+            if len(recent) >= 2 and recent[-1] > recent[0]:
+                out[key] = (len(recent) - 1) / ((recent[-1] - recent[0]) / 1e9)
+            else:
+                span = min(self._window_ns, now_ns - self._first[key])
+                out[key] = len(recent) / (span / 1e9) if span > 0 and recent else 0.0
         return out
 
 
