@@ -67,9 +67,10 @@ def receiver_commands(rc: ReceiverConfig) -> tuple[str, ...]:
     Logs go to THISPORT (the port the commands come in on: over USB that is the laptop's USB port, while
     ``LOG COM1 …`` would go to the physical COM1). A rover's correction port receives RTCM3 at its own baud,
     set when the rig owns the cable to it; a base's fixed height is sent with the UNDULATION that says how to
-    read it. ``LOG VERSIONB ONCE`` first: the receiver's serial number identifies it.
+    read it. ``LOG VERSIONB ONCE`` first: the receiver's serial number identifies it; then ``LOG TIMEB ONCE``: the
+    leap seconds are known before the first position, so no record is put on the host clock while they are not.
     """
-    requests = [NovatelLog("VERSIONB", NovatelTrigger.ONCE), *(
+    requests = [NovatelLog("VERSIONB", NovatelTrigger.ONCE), NovatelLog("TIMEB", NovatelTrigger.ONCE), *(
         NovatelLog(lr.name, NovatelTrigger(lr.trigger.value.upper()), lr.period_s) for lr in rc.logs)]
     names = {_log_base_name(lr.name) for lr in rc.logs}
     modes: list[tuple[str, str, str]] = []

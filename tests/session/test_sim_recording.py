@@ -370,3 +370,14 @@ def test_the_receivers_output_latency_is_measured_not_told(run: Recorded) -> Non
     assert live and abs(int(live[-1].details["output_latency_ns"]) - true_ns) < 1.0 * MS
     can = next(t for t in timing_vs_truth(run.ds, run.cfg) if t.stream.startswith("can:"))
     assert can.n > 1000 and can.max_abs_ns < 1.0 * MS, can
+
+
+def test_no_gnss_record_waits_on_the_host_clock_for_the_leap_seconds(run: Recorded) -> None:
+    """``LOG TIMEB ONCE`` before the other logs: every BESTPOS in the file carries its own GPS time on the
+    common base, the first ones too (they carried the host receive time, ~50 ms later, before the TIME log)."""
+    ds = run.ds
+    for receiver in ("rover_a", "rover_b"):
+        log_t, _pub, _data = ds._messages(T.gnss_bestpos(receiver))
+        gps_utc = ds.gnss(receiver).bestpos.time_ns  # the GPS time of each log, to UTC with the leap seconds
+        assert len(log_t) == len(gps_utc) > 100
+        assert np.array_equal(np.sort(np.asarray(log_t, dtype=np.int64)), np.sort(gps_utc)), receiver
