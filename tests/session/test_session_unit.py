@@ -180,3 +180,29 @@ def test_host_stamped_can_blocks_never_run_back_when_the_host_map_moves_back(tmp
     blocks = puts.times[dev.topic_frames]
     assert len(blocks) == 4
     assert blocks == sorted(blocks), [b - blocks[0] for b in blocks]
+
+
+def test_only_finesteering_logs_feed_the_clock_fit(tmp_path: Path) -> None:
+    """After power-up or a reset a receiver's GPS time is its coarse guess (UNKNOWN, COARSE): such logs are
+    recorded but give the time base no (GPS time, host time) pair; FINESTEERING ones do."""
+    from drivers.novatel import Framer, TimeStatus, encode_binary, make_header
+    from drivers.novatel.receiver import ReceivedChunk
+    from tests.novatel.gen import sample_bestpos
+
+    cfg = _config()
+    rover = next(r for r in cfg.receivers if r.name == "rover_a").model_copy(
+        update={"port": str(tmp_path / "no-such-port"), "correction_device": None})
+    cfg = cfg.model_copy(update={"receivers": (rover,), "relay": None, "daq": None, "simulation": None, "can": ()})
+    session = Recording(cfg, out_dir=tmp_path, name="fine")
+    session.start()
+    try:
+        dev = session.gnss["rover_a"]
+        clock = session.timebase.gnss_clock("rover_a")
+        for k, status in enumerate((TimeStatus.UNKNOWN, TimeStatus.COARSE, TimeStatus.FINESTEERING)):
+            body = sample_bestpos(k)
+            raw = encode_binary(make_header(body, week=2400, seconds=345600.0 + k, time_status=status), body)
+            frames = Framer().feed(raw)
+            dev._on_data(ReceivedChunk("rover_a", session.clock.now_ns(), raw, tuple(frames), 1))
+            assert clock.n == (1 if status is TimeStatus.FINESTEERING else 0), status
+    finally:
+        session.stop()
