@@ -256,17 +256,16 @@ XL_CHIPSTAT_ERROR_WARNING = 0x04
 XL_CHIPSTAT_ERROR_ACTIVE = 0x08
 
 
+def _state_of_flags(flags: int, bits: tuple[int, int, int, int]) -> BusState | None:
+    """The worst state whose bit is set, given the (bus-off, passive, warning, active) bits of a status word."""
+    states = (BusState.BUS_OFF, BusState.PASSIVE, BusState.WARNING, BusState.ACTIVE)
+    return next((state for bit, state in zip(bits, states, strict=True) if flags & bit), None)
+
+
 def vector_state(bus_status: int) -> BusState | None:
     """:class:`BusState` of a Vector chip state's ``busStatus``."""
-    if bus_status & XL_CHIPSTAT_BUSOFF:
-        return BusState.BUS_OFF
-    if bus_status & XL_CHIPSTAT_ERROR_PASSIVE:
-        return BusState.PASSIVE
-    if bus_status & XL_CHIPSTAT_ERROR_WARNING:
-        return BusState.WARNING
-    if bus_status & XL_CHIPSTAT_ERROR_ACTIVE:
-        return BusState.ACTIVE
-    return None
+    return _state_of_flags(bus_status, (XL_CHIPSTAT_BUSOFF, XL_CHIPSTAT_ERROR_PASSIVE, XL_CHIPSTAT_ERROR_WARNING,
+                                        XL_CHIPSTAT_ERROR_ACTIVE))
 
 
 class VectorChipState(ControllerMonitor):
@@ -286,15 +285,15 @@ class VectorChipState(ControllerMonitor):
 
     def _can_event(self, event: Any) -> None:
         if int(event.tag) == XL_CHIP_STATE:
-            chip = event.tagData.chipState
-            self._pending = ControllerReport(vector_state(int(chip.busStatus)), int(chip.txErrorCounter),
-                                             int(chip.rxErrorCounter))
+            self._chip(event.tagData.chipState)
 
     def _canfd_event(self, event: Any) -> None:
         if int(event.tag) == XL_CAN_EV_TAG_CHIP_STATE:
-            chip = event.tagData.canChipState
-            self._pending = ControllerReport(vector_state(int(chip.busStatus)), int(chip.txErrorCounter),
-                                             int(chip.rxErrorCounter))
+            self._chip(event.tagData.canChipState)
+
+    def _chip(self, chip: Any) -> None:
+        self._pending = ControllerReport(vector_state(int(chip.busStatus)), int(chip.txErrorCounter),
+                                         int(chip.rxErrorCounter))
 
     def poll(self, bus: can.BusABC) -> ControllerReport | None:
         report, self._pending = self._pending, None
@@ -321,15 +320,7 @@ KvaserReader = Callable[[int], tuple[int, int | None, int | None]]
 
 def kvaser_state(flags: int) -> BusState | None:
     """:class:`BusState` of ``canReadStatus`` flags."""
-    if flags & canSTAT_BUS_OFF:
-        return BusState.BUS_OFF
-    if flags & canSTAT_ERROR_PASSIVE:
-        return BusState.PASSIVE
-    if flags & canSTAT_ERROR_WARNING:
-        return BusState.WARNING
-    if flags & canSTAT_ERROR_ACTIVE:
-        return BusState.ACTIVE
-    return None
+    return _state_of_flags(flags, (canSTAT_BUS_OFF, canSTAT_ERROR_PASSIVE, canSTAT_ERROR_WARNING, canSTAT_ERROR_ACTIVE))
 
 
 def _canlib_reader() -> KvaserReader | None:
