@@ -97,7 +97,8 @@ def test_steering_ratio_from_the_demo_circles_matches_the_simulated_gear(demo_ou
 # logging 1.45 s of simulated time later (the receivers' configuration took longer: 29 of 3255 BESTPOS,
 # 0.9 %), so the decoded counts are held to 3 %. The raw topics (port reads, CAN and DAQ blocks) and the
 # events are held to their schemas only: the twins that behave like OEM7 receivers (issue 29) pace their
-# ports differently, which changes how many reads carry the same bytes (rover_a: 10257 -> 7054).
+# ports differently, which changes how many reads carry the same bytes (rover_a: 10257 -> 7054). One topic
+# joined since: /gnss/base/time (every receiver logs TIMEB ONCE at connect, the base too).
 _GOLDEN = Path(__file__).with_name("golden") / "demo_topics.json"
 _LOOSE = ("/raw", "/samples", "/frames", "/rig/events", "/rig/timebase", "/relay/stats")
 

@@ -86,8 +86,9 @@ def test_live_daq_times_follow_each_acquisition_after_a_reconnect(
         print(f"acquisition {k}: {np.count_nonzero(after)} blocks after the sync fit, "
               f"max |error| {worst / 1e3:.1f} µs; before it (host clock) max {host / 1e6:.2f} ms")
         assert worst < 0.1 * MS
-        # before its fit, the host mapping: late by scheduling only, not by the reconnect's index estimate
-        assert host < 50 * MS
+        # before its fit, the host mapping: off by scheduling and by the reference receiver's output latency the
+        # recording has not measured yet (OEM7: 50 ms at most), not by the reconnect's index estimate
+        assert host < 100 * MS
     # /rig/timebase: one sync record per acquisition, each with a small residual
     tb = ds.timebase_records()
     sync = {str(tb["clock"][i]): float(tb["rms_ns"][i]) for i in range(len(tb)) if tb["method"][i] == "sync_pulse"}
