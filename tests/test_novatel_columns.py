@@ -57,7 +57,7 @@ from drivers.novatel.columns import (
 )
 from drivers.novatel.crc import novatel_crc32
 from drivers.novatel.layouts import CODECS_BY_NAME, Kind
-from tests.novatel.gen import TYPED, body_strategy, long_header_strategy, nmea_gga, sample_bestpos
+from tests.novatel.gen import GARBAGE, TYPED, body_strategy, damage, long_header_strategy, nmea_gga, sample_bestpos
 from vsccore.errors import ConfigError, EncodeError
 from vsccore.gpstime import gps_to_ns
 
@@ -194,7 +194,6 @@ def test_vectors_mixed_several_times_with_garbage_and_a_cut_tail(shared_dir: Pat
 
 # --- hypothesis: mixed ASCII + binary streams -------------------------------------------------------
 
-GARBAGE = st.binary(max_size=12).map(lambda b: b.translate(None, b"$<[\xd3"))  # no NMEA/abbrev/prompt/RTCM starts
 NEAR_FRAMES = st.sampled_from(
     [b"#", b"#B", b"#BESTPOSA,", b"*", b"*12345678", b"\r\n", b"%", b"\xaa\x44\x12", b",", b";"]
 )
@@ -226,21 +225,7 @@ def test_random_mixed_streams_match_the_framer(data: bytes) -> None:
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(st.lists(log_frames(), min_size=1, max_size=6).map(b"".join), st.data())
 def test_damaged_streams_count_rejections_as_the_framer_does(clean: bytes, data: st.DataObject) -> None:
-    damaged = bytearray(clean)
-    for _ in range(data.draw(st.integers(1, 3), label="damages")):
-        if not damaged:
-            break
-        at = data.draw(st.integers(0, len(damaged) - 1), label="at")
-        how = data.draw(st.sampled_from(["flip", "cut", "drop", "insert"]), label="how")
-        if how == "flip":
-            damaged[at] ^= 1 << data.draw(st.integers(0, 7), label="bit")
-        elif how == "cut":
-            del damaged[at:]
-        elif how == "drop":
-            del damaged[at : at + data.draw(st.integers(1, 40), label="n")]
-        else:
-            damaged[at:at] = data.draw(GARBAGE, label="garbage")
-    assert_matches_framer(bytes(damaged))
+    assert_matches_framer(damage(clean, data))
 
 
 def receiver_like_body(cls: type[Any]) -> st.SearchStrategy[Any]:

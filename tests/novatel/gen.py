@@ -243,3 +243,27 @@ def mixed_stream() -> list[tuple[Any, bytes, bytes]]:
         line(FrameKind.NOVATEL_ABBREV, abbrev),
         line(FrameKind.PROMPT, encode_prompt("ICOM1")),
     ]
+
+
+GARBAGE = st.binary(max_size=12).map(lambda b: b.translate(None, b"$<[\xd3"))  # no NMEA/abbrev/prompt/RTCM starts
+"""Bytes between frames that start no frame of any kind."""
+
+
+def damage(clean: bytes, data: st.DataObject) -> bytes:
+    """``clean`` with 1-3 damages drawn from ``data``: a flipped bit, the end cut off, bytes dropped, garbage
+    inserted (the damage a serial line does)."""
+    damaged = bytearray(clean)
+    for _ in range(data.draw(st.integers(1, 3), label="damages")):
+        if not damaged:
+            break
+        at = data.draw(st.integers(0, len(damaged) - 1), label="at")
+        how = data.draw(st.sampled_from(["flip", "cut", "drop", "insert"]), label="how")
+        if how == "flip":
+            damaged[at] ^= 1 << data.draw(st.integers(0, 7), label="bit")
+        elif how == "cut":
+            del damaged[at:]
+        elif how == "drop":
+            del damaged[at : at + data.draw(st.integers(1, 40), label="n")]
+        else:
+            damaged[at:at] = data.draw(GARBAGE, label="garbage")
+    return bytes(damaged)

@@ -55,7 +55,7 @@ from drivers.novatel.rawobs import (
     encode_gloephemeris,
     encode_gpsephem,
 )
-from tests.novatel.gen import long_header_strategy, sample_bestpos
+from tests.novatel.gen import GARBAGE, damage, long_header_strategy, sample_bestpos
 from vsccore.errors import DecodeError
 
 LONG_KINDS = (FrameKind.NOVATEL_ASCII, FrameKind.NOVATEL_BINARY)
@@ -367,7 +367,6 @@ def test_logs_argument_and_empty_columns() -> None:
 
 # --- streams: garbage, damage, every prefix ------------------------------------------------------------
 
-GARBAGE = st.binary(max_size=12).map(lambda b: b.translate(None, b"$<[\xd3"))  # no NMEA/abbrev/prompt/RTCM starts
 NEAR_FRAMES = st.sampled_from([b"#", b"#RANGECMPA,", b"*", b"*12345678", b"\r\n", b"%", b"\xaa\x44\x12", b",", b";",
                                b"\xaa\x44\x12\x1c\x8c\x00"])
 
@@ -401,21 +400,7 @@ def test_mixed_streams_with_garbage_match_the_per_message_path(data: bytes) -> N
 @PROPS
 @given(st.lists(frames(), min_size=1, max_size=6).map(b"".join), st.data())
 def test_damaged_streams_count_rejections_as_the_framer_does(clean: bytes, data: st.DataObject) -> None:
-    damaged = bytearray(clean)
-    for _ in range(data.draw(st.integers(1, 3), label="damages")):
-        if not damaged:
-            break
-        at = data.draw(st.integers(0, len(damaged) - 1), label="at")
-        how = data.draw(st.sampled_from(["flip", "cut", "drop", "insert"]), label="how")
-        if how == "flip":
-            damaged[at] ^= 1 << data.draw(st.integers(0, 7), label="bit")
-        elif how == "cut":
-            del damaged[at:]
-        elif how == "drop":
-            del damaged[at : at + data.draw(st.integers(1, 40), label="n")]
-        else:
-            damaged[at:at] = data.draw(GARBAGE, label="garbage")
-    assert_matches_reference(bytes(damaged))
+    assert_matches_reference(damage(clean, data))
 
 
 def test_every_prefix_of_a_stream_matches_the_per_message_path() -> None:
