@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import queue
 import time
 from typing import Any
 
@@ -16,7 +15,6 @@ from drivers.can.bus import (
     BusOpened,
     BusState,
     BusStateChanged,
-    BusStats,
     CanBusConfig,
     CanBusLink,
     CanFrame,
@@ -28,39 +26,12 @@ from drivers.can.bus import (
     open_bus,
     timestamp_source_for,
 )
+from tests.can_live.collect import Collector
 from tests.can_live.faulty_bus import Plug, faulty_factory
 from vsccore.clock import ScaledClock
 from vsccore.errors import ConfigError, DeviceError
 
 T0_NS = 1_700_000_000_000_000_000
-
-
-class Collector:
-    """Frames and events from a session, in queues to wait on with timeouts."""
-
-    def __init__(self) -> None:
-        self.frames: queue.Queue[CanFrame] = queue.Queue()
-        self.events: queue.Queue[Any] = queue.Queue()
-
-    def frame(self, f: CanFrame) -> None:
-        self.frames.put(f)
-
-    def event(self, e: Any) -> None:
-        if not isinstance(e, BusStats):
-            self.events.put(e)
-
-    def wait_event(self, kind: type, timeout: float = 3.0, where: Any = None) -> Any:
-        deadline = time.monotonic() + timeout
-        while True:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise AssertionError(f"no {kind.__name__} event within {timeout} s")
-            e = self.events.get(timeout=remaining)
-            if isinstance(e, kind) and (where is None or where(e)):
-                return e
-
-    def wait_frames(self, n: int, timeout: float = 3.0) -> list[CanFrame]:
-        return [self.frames.get(timeout=timeout) for _ in range(n)]
 
 
 def _session(channel: str, col: Collector, **kw: Any) -> CanBusLink:

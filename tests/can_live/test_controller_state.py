@@ -16,11 +16,8 @@ from drivers.can.bus import (
     BusLost,
     BusOpened,
     BusState,
-    BusStateChanged,
-    BusStats,
     CanBusConfig,
     CanBusLink,
-    CanFrame,
 )
 from drivers.can.controller import (
     CAN_ERR_BUSOFF,
@@ -41,35 +38,15 @@ from drivers.can.controller import (
     controller_monitor_for,
     socketcan_error_frame,
 )
+from tests.can_live.collect import Collector
 from vsccore.clock import ScaledClock
 
 T0_NS = 1_700_000_000_000_000_000
 
 
-class Events:
-    """Events of a link in a queue, waited on with timeouts."""
-
-    def __init__(self) -> None:
-        self.q: queue.Queue[Any] = queue.Queue()
-        self.frames: queue.Queue[CanFrame] = queue.Queue()
-
-    def __call__(self, event: Any) -> None:
-        if not isinstance(event, BusStats):
-            self.q.put(event)
-
-    def wait(self, kind: type, where: Any = None, timeout: float = 5.0) -> Any:
-        while True:
-            event = self.q.get(timeout=timeout)
-            if isinstance(event, kind) and (where is None or where(event)):
-                return event
-
-    def state(self, state: BusState, timeout: float = 5.0) -> BusStateChanged:
-        return self.wait(BusStateChanged, lambda e: e.state is state, timeout)
-
-
-def _link(config: CanBusConfig, events: Events, factory: Any, **kw: Any) -> CanBusLink:
+def _link(config: CanBusConfig, events: Collector, factory: Any, **kw: Any) -> CanBusLink:
     kw.setdefault("state_poll_s", 0.02)
-    return CanBusLink(config, events.frames.put, events, clock=ScaledClock(T0_NS), bus_factory=factory,
+    return CanBusLink(config, events.frame, events.event, clock=ScaledClock(T0_NS), bus_factory=factory,
                       backoff_initial_s=0.05, **kw)
 
 
@@ -129,9 +106,9 @@ def _pcan_factory(adapter: PcanAdapter):
 def test_a_listen_only_pcan_is_not_reported_error_passive() -> None:
     """python-can's PcanBus.state says PASSIVE for a listen-only channel; the state comes from status()."""
     adapter = PcanAdapter()
-    events = Events()
+    events = Collector()
     with _link(CanBusConfig("pcan", "PCAN_USBBUS1", name="pt"), events, _pcan_factory(adapter)) as link:
-        assert events.wait(BusOpened).listen_only is True
+        assert events.wait_event(BusOpened).listen_only is True
         assert events.state(BusState.ACTIVE)
         adapter.rx.put(can.Message(arbitration_id=0x101, data=b"\x01", is_extended_id=False))
         events.frames.get(timeout=5.0)
@@ -140,7 +117,7 @@ def test_a_listen_only_pcan_is_not_reported_error_passive() -> None:
 
 def test_pcan_warning_passive_and_bus_off_from_its_status() -> None:
     adapter = PcanAdapter()
-    events = Events()
+    events = Collector()
     with _link(CanBusConfig("pcan", "PCAN_USBBUS1", name="pt"), events, _pcan_factory(adapter)) as link:
         events.state(BusState.ACTIVE)
         adapter.status = PCAN_ERROR_BUSHEAVY  # = PCAN_ERROR_BUSWARNING
@@ -150,9 +127,9 @@ def test_pcan_warning_passive_and_bus_off_from_its_status() -> None:
         assert adapter.opens == 1
         adapter.status = PCAN_ERROR_BUSOFF
         events.state(BusState.BUS_OFF)
-        lost = events.wait(BusLost)
+        lost = events.wait_event(BusLost)
         assert "bus-off" in lost.reason
-        gap = events.wait(BusGap)  # re-initialising the channel restarts the controller
+        gap = events.wait_event(BusGap)  # re-initialising the channel restarts the controller
         assert gap.recovered and gap.reopen_attempts >= 1
         assert adapter.opens >= 2
         assert link.state is BusState.ACTIVE  # reported on reopening, before the gap
@@ -163,7 +140,7 @@ def test_a_pcan_error_frame_is_not_read_as_a_socketcan_one() -> None:
     """PCAN error frames carry PCAN's error type in the identifier (4: stuff error) — the SocketCAN
     reading would take the identifier for CAN_ERR_CRTL and data[1] 0x10 for RX error passive."""
     adapter = PcanAdapter()
-    events = Events()
+    events = Collector()
     with _link(CanBusConfig("pcan", "PCAN_USBBUS1", name="pt"), events, _pcan_factory(adapter),
                state_poll_s=60.0) as link:
         events.state(BusState.ACTIVE)
@@ -233,7 +210,7 @@ def test_vector_chip_states_are_reported_with_their_counters() -> None:
         buses.append(FakeVectorBus(str(config.channel), chip))
         return buses[-1]
 
-    events = Events()
+    events = Collector()
     with _link(CanBusConfig("vector", "0", name="pt"), events, factory) as link:
         events.state(BusState.ACTIVE)
         chip.update(status=XL_CHIPSTAT_ERROR_WARNING, tx=0, rx=100)
@@ -244,7 +221,7 @@ def test_vector_chip_states_are_reported_with_their_counters() -> None:
         chip.update(status=XL_CHIPSTAT_BUSOFF, tx=255, rx=0)
         events.state(BusState.BUS_OFF)
         chip.update(status=XL_CHIPSTAT_ERROR_ACTIVE, tx=0, rx=0)  # re-activating the channel restarts it
-        assert events.wait(BusGap).recovered
+        assert events.wait_event(BusGap).recovered
         events.state(BusState.ACTIVE)  # the chip state comes as an event after the reopen
     assert buses[0].xldriver.requests > 0 and len(buses) >= 2
 
@@ -296,7 +273,7 @@ def test_kvaser_status_flags_and_counters() -> None:
         status.update(flags=0x08, tx=0, rx=0)  # canBusOn after canBusOff: error active again
         return FakeKvaserBus(str(config.channel), opens)
 
-    events = Events()
+    events = Collector()
     with _link(CanBusConfig("kvaser", "0", name="pt"), events, factory,
                controller=KvaserStatus(read_status)) as link:
         events.state(BusState.ACTIVE)
@@ -307,7 +284,7 @@ def test_kvaser_status_flags_and_counters() -> None:
         events.state(BusState.PASSIVE)
         status.update(flags=0x02, tx=255, rx=2)  # canSTAT_BUS_OFF
         events.state(BusState.BUS_OFF)
-        assert events.wait(BusGap).recovered
+        assert events.wait_event(BusGap).recovered
         assert link.state is BusState.ACTIVE
     assert set(handles) == {42} and len(opens) >= 2
 
@@ -324,17 +301,17 @@ def test_socketcan_bus_off_is_waited_out_until_the_kernel_restarts_it(channel: s
         opens.append(config)
         return can.Bus(interface="virtual", channel=channel)
 
-    events = Events()
+    events = Collector()
     with _link(CanBusConfig("virtual", channel, name="pt"), events, factory) as link, \
             can.Bus(interface="virtual", channel=channel) as tx:
-        events.wait(BusOpened)
+        events.wait_event(BusOpened)
         tx.send(socketcan_error_frame(CAN_ERR_CRTL, status=CAN_ERR_CRTL_RX_PASSIVE, tx_errors=0, rx_errors=128))
         events.state(BusState.PASSIVE)
         tx.send(socketcan_error_frame(CAN_ERR_BUSOFF))
         events.state(BusState.BUS_OFF)
-        assert "bus-off" in events.wait(BusLost).reason
+        assert "bus-off" in events.wait_event(BusLost).reason
         tx.send(socketcan_error_frame(CAN_ERR_RESTARTED))
-        gap = events.wait(BusGap)
+        gap = events.wait_event(BusGap)
         assert gap.recovered and gap.reopen_attempts == 0
         assert link.state is BusState.ACTIVE
         tx.send(can.Message(arbitration_id=0x100, data=b"\x01", is_extended_id=False))
