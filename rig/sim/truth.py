@@ -14,12 +14,10 @@ from rig.data import Session
 from vsccore.errors import ConfigError
 from vsccore.gpstime import gps_ns_to_unix_ns
 
-__all__ = ["BESTPOSB_BYTES", "StreamTiming", "gnss_min_latency_s", "timing_vs_truth", "true_output_latency_ns"]
+__all__ = ["StreamTiming", "timing_vs_truth", "true_output_latency_ns"]
 
 
 
-BESTPOSB_BYTES = 28 + 72 + 4
-"""Binary BESTPOS on the wire: header, body, CRC."""
 
 
 def true_output_latency_ns(ds: Session) -> dict[str, int]:
@@ -28,19 +26,6 @@ def true_output_latency_ns(ds: Session) -> dict[str, int]:
         if e.source == "sim" and isinstance(e.details.get("gnss_output_latency_ns"), dict):
             return {str(k): int(v) for k, v in e.details["gnss_output_latency_ns"].items()}
     raise ConfigError(f"{ds.path}: no simulated receivers' latency recorded (not a simulated session?)")
-
-
-def gnss_min_latency_s(ds: Session, cfg: SessionConfig, receiver: str | None = None) -> float:
-    """The true constant part of a rover's BESTPOS latency in a simulated session (the reference rover by
-    default): its output latency plus the log's serial transmission time at the port's baud rate. For
-    scoring against the truth (pass it to :func:`rig.data.load_session`); the recording itself never reads it."""
-    if cfg.simulation is None:
-        raise ConfigError("simulation: not a simulated session")
-    rovers = sorted((r for r in cfg.receivers if r.role == "rover"), key=lambda r: (r.antenna or "z", r.name))
-    rc = next((r for r in rovers if r.name == receiver), rovers[0] if rovers else None) if rovers else None
-    if rc is None:
-        raise ConfigError("simulation: no rover")
-    return true_output_latency_ns(ds)[rc.name] / 1e9 + BESTPOSB_BYTES * 10 / rc.baud
 
 
 @dataclass(frozen=True, slots=True)
