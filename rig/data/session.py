@@ -629,15 +629,19 @@ class Session:
 
     def gnss_output_latency_ns(self, receiver: str) -> int:
         """A receiver's fixed output latency (data time → first byte on the port), which the lower envelope of
-        its own pairs cannot see: ``receivers[].output_latency_s`` of the recorded configuration; else measured
-        from the DAQ's sync pulse (:attr:`measured_output_latency`); else the OEM7 figure
+        its own pairs cannot see: ``receivers[].output_latency_s`` of the recorded configuration; else, for the
+        receiver whose logs make the host map, measured from the DAQ's sync pulse (:attr:`measured_output_latency`);
+        else the OEM7 figure
         :data:`OEM7_OUTPUT_LATENCY_S` with a warning that the host-timed streams carry its uncertainty."""
         configured = self._configured_latency_ns(receiver)
         if configured is not None:
             return configured
         measured, why = self.measured_output_latency
+        raw = self._raw_host_clock
+        if measured is not None and raw is not None and raw.name == f"gnss:{receiver}":
+            return measured  # the DAQ measures the receiver whose logs make the host map, and only that one
         if measured is not None:
-            return measured
+            why = "measured for the reference receiver only"
         self._warn(f"{self.path}: receiver {receiver!r}: output latency neither configured nor measured ({why}); "
                    f"taken as OEM7's typical {OEM7_OUTPUT_LATENCY_S * 1e3:.0f} ms (20-30 ms typical, 50 ms at most): "
                    "times of CAN and DAQ data on the host clock carry that uncertainty")
